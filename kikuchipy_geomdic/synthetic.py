@@ -1,0 +1,618 @@
+"""Synthetic EBSD maps with a known geometry and known orientations.
+
+Ground truth is this package's main instrument: a map simulated here comes
+with its true geometry and orientations, a perturbed starting geometry and
+perturbed starting orientations, so that any calibration can be scored.
+
+Master patterns
+---------------
+:func:`master_pattern` returns a Lambert master pattern (both hemispheres)
+for silicon, tetragonal BaTiO3 or any orix :class:`~orix.crystal_map.Phase`:
+dynamical for Si and BaTiO3 from the package data (computed with ebsdsim
+0.2.4, MIT, energy bins summed with their weights), or kinematical, built
+here with diffsims/kikuchipy for any phase.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from importlib import resources
+from typing import Mapping
+
+import dask.array as da
+import numpy as np
+from kikuchipy.detectors import EBSDDetector
+from kikuchipy.signals import EBSD, EBSDMasterPattern, LazyEBSD
+from orix.crystal_map import CrystalMap, Phase, PhaseList
+from orix.quaternion import Rotation
+from scipy import ndimage
+
+from kikuchipy_geomdic.geometry import MapGeometry
+from kikuchipy_geomdic.simulation import check_master_pattern, simulate_patterns
+
+__all__ = [
+    "phase",
+    "master_pattern",
+    "variant_operators",
+    "VARIANT_NAMES",
+    "perturb_rotations",
+    "default_geometry",
+    "DEFAULT_PERTURBATION",
+    "SyntheticMap",
+    "synthetic_map",
+    "degrade_patterns",
+]
+
+_DATA = resources.files("kikuchipy_geomdic") / "data"
+_PHASES = {"si": "Si", "silicon": "Si", "batio3": "BaTiO3", "bto": "BaTiO3"}
+
+
+def _phase_key(name: str) -> str:
+    try:
+        return _PHASES[name.lower()]
+    except KeyError:
+        raise ValueError(
+            f"Unknown phase {name!r}: use 'Si', 'BaTiO3' or pass an orix Phase"
+        ) from None
+
+
+def phase(name: str) -> Phase:
+    """Return the orix phase of silicon or tetragonal BaTiO3.
+
+    Parameters
+    ----------
+    name
+        "Si" or "BaTiO3" (case-insensitive).
+
+    Returns
+    -------
+    phase
+        Phase read from the CIF shipped with the package (lattice
+        parameters in angstrom).
+
+    Examples
+    --------
+    >>> from kikuchipy_geomdic.synthetic import phase
+    >>> phase("BaTiO3").point_group.name
+    '4mm'
+    """
+    key = _phase_key(name)
+    with resources.as_file(_DATA / f"{key}.cif") as path:
+        p = Phase.from_cif(str(path))
+    p.name = key
+    return p
+
+
+def master_pattern(
+    phase_or_name: str | Phase = "Si",
+    kind: str = "auto",
+    energy: float = 20,
+    half_size: int = 100,
+    min_dspacing: float = 0.8,
+) -> EBSDMasterPattern:
+    """Return a Lambert master pattern with both hemispheres.
+
+    Parameters
+    ----------
+    phase_or_name
+        "Si", "BaTiO3" or an orix phase (lattice parameters in angstrom).
+    kind
+        "dynamical" (package data, Si and BaTiO3 at 20 kV only),
+        "kinematical" (any phase, any energy), or "auto": dynamical where
+        available, else kinematical.
+    energy
+        Beam energy in kV (kinematical only; dynamical ones are 20 kV).
+    half_size
+        Half the side of the kinematical master pattern in pixels.
+    min_dspacing
+        Smallest interplanar spacing of the kinematical reflectors, in
+        angstrom.
+
+    Returns
+    -------
+    master_pattern
+        :class:`~kikuchipy.signals.EBSDMasterPattern`, Lambert projection,
+        hemisphere "both", float32. ``metadata.General.title`` says which
+        kind it is.
+
+    Examples
+    --------
+    >>> from kikuchipy_geomdic.synthetic import master_pattern
+    >>> mp = master_pattern("Si")
+    >>> mp.projection, mp.hemisphere, mp.metadata.General.title
+    ('lambert', 'both', 'Si dynamical (ebsdsim 0.2.4)')
+    """
+    if kind not in ("auto", "dynamical", "kinematical"):
+        raise ValueError(f"kind must be 'auto', 'dynamical' or 'kinematical', not {kind!r}")
+    if isinstance(phase_or_name, Phase):
+        if kind == "dynamical":
+            raise ValueError("Dynamical master patterns exist only for 'Si' and 'BaTiO3'")
+        return _kinematical(phase_or_name, energy, half_size, min_dspacing).deepcopy()
+    key = _phase_key(phase_or_name)
+    if kind == "kinematical":
+        return _kinematical_named(key, energy, half_size, min_dspacing).deepcopy()
+    if energy != 20:
+        if kind == "dynamical":
+            raise ValueError("The shipped dynamical master patterns are for 20 kV")
+        return _kinematical_named(key, energy, half_size, min_dspacing).deepcopy()
+    return _dynamical(key).deepcopy()
+
+
+#: BaTiO3's six ferroelectric variants as pseudo-symmetry operators (left
+#: factors, ``op * rotation``): the c axis along +z, -z, +x, -x, +y, -y of
+#: the pseudo-cubic frame (identity, 180 deg about [100], -90 and 90 deg
+#: about [010], 90 and -90 deg about [100]).
+VARIANT_NAMES = ("+z", "-z", "+x", "-x", "+y", "-y")
+
+
+def variant_operators() -> Rotation:
+    """Return the six BaTiO3 variant operators, identity first.
+
+    Returns
+    -------
+    operators
+        :class:`~orix.quaternion.Rotation` of shape (6,), in the order of
+        :data:`VARIANT_NAMES`. ``operators[1:]`` is what kikuchipy's
+        ``pseudo_symmetry_ops`` takes.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from orix.vector import Vector3d
+    >>> from kikuchipy_geomdic.synthetic import variant_operators
+    >>> c = ~variant_operators() * Vector3d.zvector()
+    >>> np.round(c.data, 6).tolist()[:3]
+    [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]]
+    """
+    axes = [[1, 0, 0], [1, 0, 0], [0, 1, 0], [0, 1, 0], [1, 0, 0], [1, 0, 0]]
+    angles = np.deg2rad([0, 180, -90, 90, 90, -90])
+    return Rotation.from_axes_angles(axes, angles)
+
+
+def _random_rotations(n: int, rng: np.random.Generator) -> Rotation:
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    return Rotation(q)
+
+
+def perturb_rotations(rotations: Rotation, scatter: float, rng) -> Rotation:
+    """Return rotations times small random rotations of zero mean.
+
+    Parameters
+    ----------
+    rotations
+        Rotations to perturb (any shape; flattened).
+    scatter
+        RMS misorientation angle in degrees. Each rotation is multiplied
+        by a rotation whose rotation vector has independent normal
+        components of standard deviation ``scatter / sqrt(3)``.
+    rng
+        :class:`numpy.random.Generator` or a seed.
+
+    Returns
+    -------
+    perturbed
+        Flat :class:`~orix.quaternion.Rotation`.
+    """
+    rng = np.random.default_rng(rng)
+    rotations = rotations.flatten()
+    v = rng.normal(scale=np.deg2rad(scatter) / np.sqrt(3), size=(rotations.size, 3))
+    angle = np.linalg.norm(v, axis=1)
+    safe = np.where(angle > 0, angle, 1.0)[:, None]
+    axis = np.where(angle[:, None] > 0, v / safe, [0.0, 0.0, 1.0])
+    return rotations * Rotation.from_axes_angles(axis, angle)
+
+
+def default_geometry(
+    navigation_shape: tuple[int, int] = (10, 10),
+    shape: tuple[int, int] = (120, 120),
+    field_of_view: float = 500.0,
+) -> MapGeometry:
+    """Return a realistic true geometry for a synthetic map.
+
+    A 480 x 480 detector of 70 um pixels (33.6 mm wide) binned to
+    *shape*, about 21 mm from the sample, sample tilt 70 deg, and a map
+    *field_of_view* micrometres wide: large enough that the PC moves by
+    about 1.5 % of the detector width across the map, as it does at low
+    magnification on a real microscope. This is what makes the angles
+    observable (field notes: with per-point orientations, the angles are
+    seen only through the PC field).
+
+    Parameters
+    ----------
+    navigation_shape
+        Map shape (rows, columns).
+    shape
+        Detector shape (rows, columns) after binning; 480 must be a
+        multiple of the number of columns.
+    field_of_view
+        Map width and height in micrometres.
+
+    Returns
+    -------
+    geometry
+        :class:`~kikuchipy_geomdic.geometry.MapGeometry` with reference
+        at the map centre.
+    """
+    ny, nx = navigation_shape
+    step = field_of_view / max(max(ny, nx) - 1, 1)
+    return MapGeometry(
+        pc=(0.51, 0.27, 0.62),
+        shape=shape,
+        px_size=70.0,
+        binning=480 / shape[1],
+        step_sizes=(step, step),
+        navigation_shape=navigation_shape,
+        tilt=2.0,
+        azimuthal=0.3,
+        sample_tilt=70.0,
+        twist=0.0,
+    )
+
+
+#: Starting geometry error used when none is given: a mean displacement of
+#: about 2 % of the detector width, the paper's reliable range.
+DEFAULT_PERTURBATION = {
+    "pcx": 0.01,
+    "pcy": -0.008,
+    "pcz": 0.012,
+    "tilt": 0.6,
+    "azimuthal": -0.5,
+    "sample_tilt": 0.0,
+}
+
+
+@dataclass(frozen=True)
+class SyntheticMap:
+    """A synthetic EBSD map with its ground truth and a starting point.
+
+    Attributes
+    ----------
+    signal
+        :class:`~kikuchipy.signals.EBSD` or ``LazyEBSD`` with navigation
+        axes scaled by the step sizes (um), carrying the *starting*
+        detector and crystal map, as a file from a microscope would.
+    geometry, detector, xmap
+        The truth: geometry, detector with the PC of every map point, and
+        orientations (property ``variant`` for BaTiO3 variant maps).
+    start_geometry, start_detector, start_xmap
+        The starting point: perturbed geometry and orientations with a
+        zero-mean scatter about the truth.
+    master_pattern
+        The master pattern the map was simulated from.
+    energy
+        Beam energy in kV.
+    """
+
+    signal: EBSD
+    geometry: MapGeometry
+    detector: EBSDDetector
+    xmap: CrystalMap
+    start_geometry: MapGeometry
+    start_detector: EBSDDetector
+    start_xmap: CrystalMap
+    master_pattern: EBSDMasterPattern
+    energy: float
+
+
+def synthetic_map(
+    master_pattern: EBSDMasterPattern | str = "Si",
+    navigation_shape: tuple[int, int] = (10, 10),
+    orientations: str = "random",
+    geometry: MapGeometry | None = None,
+    shape: tuple[int, int] = (120, 120),
+    scatter: float = 0.05,
+    perturbation: Mapping[str, float] | None = None,
+    orientation_error: float = 0.3,
+    dose: float | None = None,
+    background: float = 0.0,
+    blur: float = 0.0,
+    energy: float = 20.0,
+    lazy: bool = False,
+    seed: int = 0,
+) -> SyntheticMap:
+    """Return a synthetic EBSD map with a known geometry and orientations.
+
+    Parameters
+    ----------
+    master_pattern
+        Lambert master pattern, or a name for :func:`master_pattern`.
+    navigation_shape
+        Map shape (rows, columns).
+    orientations
+        "single" (one crystal, orientations scattered by *scatter*),
+        "random" (uniformly random per point) or "variants" (BaTiO3-like
+        diagonal domains, each one of the six variants of
+        :func:`variant_operators` applied to one parent orientation,
+        scattered by *scatter*).
+    geometry
+        True geometry; default :func:`default_geometry` for this map and
+        *shape*.
+    shape
+        Detector shape, used when *geometry* is not given.
+    scatter
+        RMS orientation scatter in degrees within a crystal or domain.
+    perturbation
+        ``{parameter: change}`` from the true to the starting geometry;
+        default :data:`DEFAULT_PERTURBATION`. Pass ``{}`` to start at the
+        truth.
+    orientation_error
+        RMS angle in degrees of the zero-mean error of the starting
+        orientations.
+    dose
+        Mean electron counts per pixel for Poisson shot noise; ``None``
+        for no shot noise.
+    background
+        Relative amplitude of a smooth, off-centre Gaussian background
+        the pattern rides on (0 for none); intensities become
+        ``(1 + background * g(x, y)) * pattern``.
+    blur
+        Standard deviation in pixels of a Gaussian blur (0 for none).
+    energy
+        Beam energy in kV.
+    lazy
+        Return a ``LazyEBSD`` whose patterns are simulated chunk by chunk
+        when computed (bounded memory for large maps).
+    seed
+        Seed of everything random: orientations, starting orientations
+        and noise. The same seed gives the same map.
+
+    Returns
+    -------
+    synthetic
+        :class:`SyntheticMap`.
+
+    Examples
+    --------
+    >>> from kikuchipy_geomdic.synthetic import synthetic_map
+    >>> sm = synthetic_map("Si", (3, 4), shape=(40, 40), seed=1)
+    >>> sm.signal.data.shape
+    (3, 4, 40, 40)
+    >>> sm.xmap.shape, sm.detector.navigation_shape
+    ((3, 4), (3, 4))
+    """
+    if isinstance(master_pattern, str):
+        master_pattern = globals()["master_pattern"](master_pattern)
+    check_master_pattern(master_pattern)
+    nav = tuple(int(n) for n in navigation_shape)
+    if len(nav) != 2 or min(nav) < 1:
+        raise ValueError(f"navigation_shape must be (rows, columns), not {navigation_shape}")
+    if geometry is None:
+        geometry = default_geometry(nav, shape)
+    elif geometry.navigation_shape != nav:
+        raise ValueError(
+            f"geometry.navigation_shape {geometry.navigation_shape} differs from "
+            f"navigation_shape {nav}"
+        )
+    if perturbation is None:
+        perturbation = DEFAULT_PERTURBATION
+    rng = np.random.default_rng(seed)
+    n = nav[0] * nav[1]
+    rows, cols = np.indices(nav)
+
+    prop = {}
+    if orientations == "random":
+        rot = _random_rotations(n, rng)
+    elif orientations == "single":
+        rot = perturb_rotations(_random_rotations(1, rng) * Rotation.identity(n), scatter, rng)
+    elif orientations == "variants":
+        variant = _domains(nav).ravel()
+        parent = _random_rotations(1, rng)
+        rot = variant_operators()[variant] * parent
+        rot = perturb_rotations(rot, scatter, rng)
+        prop["variant"] = variant
+    else:
+        raise ValueError(
+            f"orientations must be 'single', 'random' or 'variants', not {orientations!r}"
+        )
+    start_rot = perturb_rotations(rot, orientation_error, rng)
+    noise_seed = int(rng.integers(2**63))
+
+    mp_phase = master_pattern.phase.deepcopy()
+    dy, dx = geometry.step_sizes
+    xmap = _crystal_map(rot, nav, (dy, dx), mp_phase, prop)
+    start_xmap = _crystal_map(start_rot, nav, (dy, dx), mp_phase, prop)
+    start_geometry = geometry.updated(perturbation)
+    detector = geometry.detector()
+    start_detector = start_geometry.detector()
+    if len(detector.navigation_shape) == 1:  # One-row maps keep 2D PCs
+        detector.pc = detector.pc.reshape(nav + (3,))
+        start_detector.pc = start_detector.pc.reshape(nav + (3,))
+
+    data = _simulate_map(
+        master_pattern,
+        rot.data.reshape(nav + (4,)),
+        detector.pc,
+        geometry,
+        energy,
+        dict(dose=dose, background=background, blur=blur, seed=noise_seed),
+    )
+    axes = [
+        {"name": "y", "size": nav[0], "scale": dy, "units": "um"},
+        {"name": "x", "size": nav[1], "scale": dx, "units": "um"},
+        {"name": "dy", "size": geometry.shape[0], "scale": 1, "units": "px"},
+        {"name": "dx", "size": geometry.shape[1], "scale": 1, "units": "px"},
+    ]
+    if lazy:
+        signal = LazyEBSD(data, axes=axes)
+    else:
+        signal = EBSD(data.compute(scheduler="threads"), axes=axes)
+    signal.detector = start_detector.deepcopy()
+    signal.xmap = start_xmap.deepcopy()
+    signal.metadata.General.title = f"synthetic {master_pattern.phase.name} map"
+    return SyntheticMap(
+        signal=signal,
+        geometry=geometry,
+        detector=detector,
+        xmap=xmap,
+        start_geometry=start_geometry,
+        start_detector=start_detector,
+        start_xmap=start_xmap,
+        master_pattern=master_pattern,
+        energy=float(energy),
+    )
+
+
+def _domains(nav: tuple[int, int]) -> np.ndarray:
+    # Diagonal stripes, as ferroelectric domain walls often run; all six
+    # variants appear once the map has six or more diagonals
+    rows, cols = np.indices(nav)
+    n_diag = nav[0] + nav[1] - 1
+    return ((rows + cols) * 6 // max(n_diag, 1)) % 6
+
+
+def _crystal_map(rot, nav, steps, mp_phase, prop) -> CrystalMap:
+    dy, dx = steps
+    rows, cols = np.indices(nav)
+    return CrystalMap(
+        rotations=rot.flatten(),
+        x=(cols * dx).ravel().astype(float),
+        y=(rows * dy).ravel().astype(float),
+        phase_list=PhaseList(mp_phase),
+        prop={k: np.asarray(v).ravel() for k, v in prop.items()},
+        scan_unit="um",
+    )
+
+
+def _simulate_map(master_pattern, quats, pcs, geometry, energy, degrade) -> da.Array:
+    nav = quats.shape[:2]
+    sig = tuple(geometry.shape)
+    # Rows of patterns per chunk: about 32 MiB of float32 output each
+    rows_per_chunk = max(1, int(32 * 2**20 // (4 * nav[1] * sig[0] * sig[1])))
+    chunks = (min(rows_per_chunk, nav[0]), nav[1])
+    q = da.from_array(quats, chunks=chunks + (4,))
+    p = da.from_array(pcs, chunks=chunks + (3,))
+    kw = dict(
+        shape=geometry.shape,
+        px_size=geometry.px_size,
+        binning=geometry.binning,
+        tilt=geometry.tilt,
+        azimuthal=geometry.azimuthal,
+        sample_tilt=geometry.sample_tilt,
+        twist=geometry.twist,
+    )
+    return da.map_blocks(
+        _simulate_block,
+        q,
+        p,
+        master_pattern=master_pattern,
+        detector_kw=kw,
+        energy=energy,
+        degrade=degrade,
+        nav_cols=nav[1],
+        dtype=np.float32,
+        chunks=q.chunks[:2] + ((sig[0],), (sig[1],)),
+        drop_axis=2,
+        new_axis=[2, 3],
+    )
+
+
+def _simulate_block(
+    q, p, master_pattern, detector_kw, energy, degrade, nav_cols, block_info=None
+):
+    shape = q.shape[:2]
+    det = EBSDDetector(pc=p.reshape(-1, 3), **detector_kw)
+    patterns = simulate_patterns(master_pattern, Rotation(q.reshape(-1, 4)), det, energy)
+    # Flat map indices so that noise does not depend on the chunking
+    (r0, _), (c0, _) = block_info[0]["array-location"][:2]
+    rows, cols = np.indices(shape)
+    flat = ((rows + r0) * nav_cols + cols + c0).ravel()
+    out = degrade_patterns(patterns, index=flat, **degrade)
+    return out.reshape(shape + patterns.shape[1:])
+
+
+def degrade_patterns(
+    patterns: np.ndarray,
+    dose: float | None = None,
+    background: float = 0.0,
+    blur: float = 0.0,
+    seed: int = 0,
+    index: np.ndarray | None = None,
+) -> np.ndarray:
+    """Return patterns degraded as on a real detector.
+
+    Parameters
+    ----------
+    patterns
+        Noise-free patterns (n, rows, columns), non-negative intensities.
+    dose
+        Mean counts per pixel for Poisson shot noise, or ``None``.
+    background
+        Relative amplitude of a smooth Gaussian background (0 for none).
+    blur
+        Gaussian blur standard deviation in pixels (0 for none).
+    seed
+        Seed; pattern *k* draws its noise from ``(seed, index[k])``.
+    index
+        Map index of each pattern (default ``arange(n)``), so that a
+        pattern's noise does not depend on which chunk it was in.
+
+    Returns
+    -------
+    degraded
+        float32 array of the same shape; unchanged patterns if all
+        degradations are off.
+    """
+    out = np.asarray(patterns, dtype=np.float32).copy()
+    n, nr, nc = out.shape
+    if index is None:
+        index = np.arange(n)
+    if background:
+        y, x = np.mgrid[0:nr, 0:nc]
+        g = np.exp(
+            -(((x - 0.45 * nc) / (0.6 * nc)) ** 2 + ((y - 0.35 * nr) / (0.6 * nr)) ** 2)
+        )
+        out *= (1 + background * g).astype(np.float32)
+    if blur:
+        out = ndimage.gaussian_filter(out, sigma=(0, blur, blur)).astype(np.float32)
+    if dose is not None:
+        for k in range(n):
+            rng = np.random.default_rng([seed, int(index[k])])
+            mean = max(float(out[k].mean()), 1e-12)
+            lam = np.clip(out[k], 0, None) * (dose / mean)
+            out[k] = rng.poisson(lam).astype(np.float32)
+    return out
+
+
+@functools.lru_cache(maxsize=4)
+def _dynamical(key: str) -> EBSDMasterPattern:
+    with resources.as_file(_DATA / f"{key}_dynamical.npz") as path:
+        npz = np.load(path)
+        data = npz["data"].astype(np.float32)
+    n = data.shape[-1]
+    axes = [
+        {"size": 2, "name": "hemisphere", "scale": 1, "offset": 0, "units": ""},
+        {"size": n, "name": "height", "scale": 1, "offset": -(n // 2), "units": "px"},
+        {"size": n, "name": "width", "scale": 1, "offset": -(n // 2), "units": "px"},
+    ]
+    mp = EBSDMasterPattern(
+        data, axes=axes, projection="lambert", hemisphere="both", phase=phase(key)
+    )
+    mp.metadata.General.title = f"{key} dynamical (ebsdsim 0.2.4)"
+    return mp
+
+
+@functools.lru_cache(maxsize=8)
+def _kinematical_named(key, energy, half_size, min_dspacing) -> EBSDMasterPattern:
+    return _kinematical(phase(key), energy, half_size, min_dspacing)
+
+
+def _kinematical(p: Phase, energy, half_size, min_dspacing) -> EBSDMasterPattern:
+    from diffsims.crystallography import ReciprocalLatticeVector
+    from kikuchipy.simulations import KikuchiPatternSimulator
+
+    g = ReciprocalLatticeVector.from_min_dspacing(p.deepcopy(), min_dspacing)
+    # Without sanitising, Si gets a wrong F(200) (field notes)
+    g.sanitise_phase()
+    g.calculate_structure_factor()
+    f = abs(g.structure_factor)
+    g = g[f > 1e-4 * f.max()]
+    g.calculate_theta(energy * 1e3)
+    sim = KikuchiPatternSimulator(g)
+    # Point groups without inversion (BaTiO3's 4mm) need both hemispheres
+    mp = sim.calculate_master_pattern(half_size=half_size, hemisphere="both")
+    mp = mp.as_lambert(show_progressbar=False)
+    mp.data = mp.data.astype(np.float32)
+    mp.metadata.General.title = f"{p.name} kinematical"
+    return mp

@@ -1,0 +1,21 @@
+"""Shared fixtures: small data built once per test session."""
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import pytest
+
+from kikuchipy_geomdic import synthetic
+
+
+@pytest.fixture(scope="session")
+def si_mp():
+    """Dynamical silicon master pattern (package data)."""
+    return synthetic.master_pattern("Si", kind="dynamical")
+
+
+@pytest.fixture(scope="session")
+def bto_mp():
+    """Dynamical BaTiO3 master pattern (package data, coarse)."""
+    return synthetic.master_pattern("BaTiO3", kind="dynamical")
