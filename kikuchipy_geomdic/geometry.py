@@ -365,7 +365,8 @@ def update_detector(
     >>> float(new.pcz[0]), new.tilt, new.twist
     (0.51, 1.0, 0.3)
     """
-    check_parameters(list(delta))
+    if delta:
+        check_parameters(list(delta))
     pc = detector.pc.copy()
     for i, name in enumerate(("pcx", "pcy", "pcz")):
         pc[..., i] += delta.get(name, 0.0)
@@ -443,6 +444,7 @@ class MapGeometry:
             raise ValueError(f"navigation_shape must be 2D, not {self.navigation_shape}")
         object.__setattr__(self, "navigation_shape", nav)
         object.__setattr__(self, "shape", tuple(int(n) for n in self.shape))
+        object.__setattr__(self, "step_sizes", tuple(float(v) for v in self.step_sizes))
         if self.reference is None:
             ref = ((nav[0] - 1) / 2, (nav[1] - 1) / 2)
         else:
@@ -503,15 +505,20 @@ class MapGeometry:
                 f"The detector has {pcs.shape[0]} PCs, which fits neither one PC "
                 f"nor the map's navigation shape {nav}"
             )
+        # NaN PCs (e.g. unrefined points) leave the mean and its position
+        finite = np.isfinite(pcs).all(axis=1)
+        if not finite.any():
+            raise ValueError("The detector's PCs are all NaN")
         rows, cols = np.indices(nav2, dtype=float)
         return cls(
-            pc=np.nanmean(pcs, axis=0),
-            reference=(rows.mean(), cols.mean()),
+            pc=pcs[finite].mean(axis=0),
+            reference=(rows.ravel()[finite].mean(), cols.ravel()[finite].mean()),
             **kw,
         )
 
     def values(self, names: Sequence[str] = PARAMETERS) -> np.ndarray:
         """Return parameter values in the order of *names*."""
+        check_parameters(names)
         d = dict(zip(("pcx", "pcy", "pcz"), self.pc))
         d.update({a: getattr(self, a) for a in _ANGLES})
         return np.array([d[n] for n in names], dtype=np.float64)
@@ -522,7 +529,8 @@ class MapGeometry:
 
     def updated(self, delta: Mapping[str, float]) -> "MapGeometry":
         """Return a new geometry with ``{name: change}`` added."""
-        check_parameters(list(delta))
+        if delta:
+            check_parameters(list(delta))
         pc = np.array(self.pc)
         for i, name in enumerate(("pcx", "pcy", "pcz")):
             pc[i] += delta.get(name, 0.0)
@@ -596,7 +604,8 @@ class MapGeometry:
         points
             Map positions (n, 2).
         x, y
-            Pixel coordinates, 1D of length m.
+            Pixel coordinates (m,), the same for every point, or (n, m),
+            per point.
 
         Returns
         -------
@@ -605,7 +614,7 @@ class MapGeometry:
         """
         pa = self.pc_at(points)[:, None, :]
         pb = other.pc_at(points)[:, None, :]
-        x = np.asarray(x, dtype=float)[None, :]
-        y = np.asarray(y, dtype=float)[None, :]
+        x = np.atleast_2d(np.asarray(x, dtype=float))
+        y = np.atleast_2d(np.asarray(y, dtype=float))
         xb, yb = forward_map(x, y, pa, self.angles, pb, other.angles, self.shape)
         return np.stack([xb - x, yb - y], axis=-1)

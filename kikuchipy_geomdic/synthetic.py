@@ -185,8 +185,12 @@ def perturb_rotations(rotations: Rotation, scatter: float, rng) -> Rotation:
         Rotations to perturb (any shape; flattened).
     scatter
         RMS misorientation angle in degrees. Each rotation is multiplied
-        by a rotation whose rotation vector has independent normal
-        components of standard deviation ``scatter / sqrt(3)``.
+        (on the right, in the sample frame) by a rotation whose rotation
+        vector has normal components of standard deviation
+        ``scatter / sqrt(3)``, centred so that their mean is exactly zero:
+        a common rotation of all orientations is indistinguishable from a
+        change of the detector angles, so a random common part would be
+        a bias of size ``scatter / sqrt(n)`` no calibration could remove.
     rng
         :class:`numpy.random.Generator` or a seed.
 
@@ -198,6 +202,8 @@ def perturb_rotations(rotations: Rotation, scatter: float, rng) -> Rotation:
     rng = np.random.default_rng(rng)
     rotations = rotations.flatten()
     v = rng.normal(scale=np.deg2rad(scatter) / np.sqrt(3), size=(rotations.size, 3))
+    if rotations.size > 1:
+        v -= v.mean(axis=0)
     angle = np.linalg.norm(v, axis=1)
     safe = np.where(angle > 0, angle, 1.0)[:, None]
     axis = np.where(angle[:, None] > 0, v / safe, [0.0, 0.0, 1.0])
@@ -338,8 +344,8 @@ def synthetic_map(
         default :data:`DEFAULT_PERTURBATION`. Pass ``{}`` to start at the
         truth.
     orientation_error
-        RMS angle in degrees of the zero-mean error of the starting
-        orientations.
+        RMS angle in degrees of the error of the starting orientations,
+        zero-mean over the map (see :func:`perturb_rotations`).
     dose
         Mean electron counts per pixel for Poisson shot noise; ``None``
         for no shot noise.
