@@ -86,8 +86,10 @@ class GeometryRefinementResult:
     xmap
         :class:`~orix.crystal_map.CrystalMap` of the calibration points
         (1D, in the order of *points*) with orientations refined at the
-        refined geometry, property ``scores`` (NCC) and properties
-        ``row`` and ``col``.
+        refined geometry and properties ``scores`` (NCC), ``row``, ``col``
+        and ``pseudo_symmetry_index``: which of
+        ``refine_kwargs["pseudo_symmetry_ops"]`` (1-based; 0 for none)
+        relates the input orientation to the refined one.
     points
         Calibration points (N, 2) as (row, column).
     parameter_names
@@ -356,7 +358,7 @@ class _Problem:
 
     def refine_orientations(
         self, geometry: MapGeometry, rotations: Rotation
-    ) -> tuple[Rotation, np.ndarray, np.ndarray]:
+    ) -> tuple[Rotation, np.ndarray]:
         n = len(self.points)
         signal = EBSD(self.experimental)
         signal.axes_manager.navigation_axes[0].name = "x"
@@ -369,29 +371,35 @@ class _Problem:
                 xmap, geometry.detector(self.points), self.master_pattern, self.energy,
                 **self.refine_kwargs,
             )
-        ops = ref.prop.get("pseudo_symmetry_index")
-        return ref.rotations, ref.scores, ops
+        return ref.rotations, ref.scores
 
-    def anchor(self, rotations: Rotation, op_index: np.ndarray | None) -> Rotation:
-        """Remove the mean right-rotation relative to the start."""
-        start = self.start_rotations
-        if op_index is not None:
-            ops = self.refine_kwargs.get("pseudo_symmetry_ops")
-            all_ops = Rotation.identity(1).flatten()
-            all_ops = Rotation(np.concatenate([all_ops.data, ops.flatten().data]))
-            start = all_ops[np.asarray(op_index, dtype=int)] * start
-        dq = ~start * rotations
-        v = dq.axis.data * dq.angle[:, None]
-        # Points that changed crystal symmetry variant are not deviations
+    def variants(self, rotations: Rotation) -> tuple[np.ndarray, Rotation]:
+        """Return, per point, the pseudo-symmetry operator (0: none) that
+        brings the start closest to *rotations*, and the remaining
+        deviation ``~(op * start) * rotation`` (a sample-frame rotation)."""
+        ops = self.refine_kwargs.get("pseudo_symmetry_ops")
+        ops_all = Rotation.identity(1)
+        if ops is not None:
+            ops_all = Rotation(np.concatenate([ops_all.data, ops.flatten().data]))
+        angles = np.stack(
+            [(~(op * self.start_rotations) * rotations).angle for op in ops_all], axis=1
+        )
+        k = np.argmin(angles, axis=1)
+        return k, ~(ops_all[k] * self.start_rotations) * rotations
+
+    def anchor(self, rotations: Rotation) -> Rotation:
+        """Remove the mean deviation from the start (see module notes)."""
+        _, dq = self.variants(rotations)
+        # Far-off points (another variant not among the operators, or a
+        # failed refinement) are not small deviations
         small = dq.angle < np.deg2rad(5)
         if not small.any():
             return rotations
-        mean = v[small].mean(axis=0)
+        mean = (dq.axis.data * dq.angle[:, None])[small].mean(axis=0)
         a = np.linalg.norm(mean)
         if a == 0:
             return rotations
-        q = Rotation.from_axes_angles(mean / a, a)
-        return rotations * ~q
+        return rotations * ~Rotation.from_axes_angles(mean / a, a)
 
     def jacobian(
         self, geometry: MapGeometry, rotations: Rotation, field0: dsp.DisplacementField, kind: str
@@ -590,10 +598,10 @@ def refine_geometry_dic(
     # The starting state, judged after orientation refinement like every
     # later state
     say(f"Refining the geometry with {len(pts)} calibration points: {', '.join(names)}")
-    rot_ref, scores, ops = problem.refine_orientations(geometry0, start_rot)
+    rot_ref, scores = problem.refine_orientations(geometry0, start_rot)
     state = dict(
         geometry=geometry0,
-        rotations=problem.anchor(rot_ref, ops),
+        rotations=problem.anchor(rot_ref),
         refined=rot_ref,
         scores=scores,
         ncc=float(np.mean(scores)),
@@ -612,8 +620,8 @@ def refine_geometry_dic(
         for attempt in range(3):
             update = solve_update(jac, state["field"].residual, state["field"].weights, lam)
             geo = state["geometry"].updated(dict(zip(names, update.delta)))
-            rot_ref, scores, ops = problem.refine_orientations(geo, state["rotations"])
-            rot = problem.anchor(rot_ref, ops)
+            rot_ref, scores = problem.refine_orientations(geo, state["rotations"])
+            rot = problem.anchor(rot_ref)
             fld = problem.measure(geo, rot)
             ncc, disp = float(np.mean(scores)), _mean_displacement(fld)
             accepted = bool(disp < state["disp"] and ncc > state["ncc"] - ncc_tolerance)
@@ -658,7 +666,12 @@ def refine_geometry_dic(
         rotations=final_rot,
         x=np.arange(len(pts), dtype=float),
         phase_list=PhaseList(problem.phase),
-        prop={"scores": np.asarray(state["scores"]), "row": pts[:, 0], "col": pts[:, 1]},
+        prop={
+            "scores": np.asarray(state["scores"]),
+            "row": pts[:, 0],
+            "col": pts[:, 1],
+            "pseudo_symmetry_index": problem.variants(final_rot)[0],
+        },
     )
     det = geometry.detector()
     if len(detector.navigation_shape) == 2 or nav[0] > 1:

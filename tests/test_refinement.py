@@ -253,3 +253,27 @@ class TestBadInput:
     def test_wrong_jacobian(self, sm):
         with pytest.raises(ValueError, match="jacobian"):
             self._call(sm, jacobian="secant")
+
+
+def test_batio3_wrong_variants_corrected(bto_mp):
+    # A third of the starting orientations are the wrong 90 deg variant;
+    # kikuchipy's pseudo-symmetry refinement inside the loop fixes them
+    from orix.quaternion import Rotation
+
+    sm = synthetic.synthetic_map(bto_mp, (6, 6), orientations="variants", shape=(60, 60), seed=0)
+    ops = synthetic.variant_operators()
+    wrong = np.random.default_rng(0).random(36) < 0.3
+    r = sm.start_xmap.rotations.data.copy()
+    r[wrong] = (ops[2] * sm.start_xmap.rotations[wrong]).data
+    xmap = CrystalMap(rotations=Rotation(r), x=sm.start_xmap.x, y=sm.start_xmap.y,
+                      phase_list=sm.start_xmap.phases)
+    res = sm.signal.refine_geometry_dic(
+        xmap, sm.start_detector, sm.master_pattern, 20, points=36, max_iterations=3,
+        refine_kwargs=dict(pseudo_symmetry_ops=ops[1:]), show_progressbar=False,
+    )
+    err, mis = _errors(res, sm)
+    assert wrong.sum() >= 8
+    assert mis <= MISORIENTATION_TOL
+    assert max(abs(err[k]) for k in ("pcx", "pcy", "pcz")) <= PC_TOL, err
+    # ops[3] undoes ops[2] (90 and -90 deg about [010])
+    assert np.array_equal(res.xmap.prop["pseudo_symmetry_index"], np.where(wrong, 3, 0))
