@@ -115,8 +115,10 @@ class GeometryRefinementResult:
         :class:`~kikuchipy_geomdic.displacement.DisplacementField` at the
         start and at the refined geometry.
     converged
-        Whether the loop ended by its tolerances rather than by
-        *max_iterations* or by rejected steps.
+        Whether the loop ended by its tolerances (NCC gain below
+        ``ncc_tolerance`` and the displacement no longer falling, or no
+        step able to lower it further) rather than by *max_iterations*
+        or by rejections before the NCC had settled.
     """
 
     detector: EBSDDetector
@@ -613,6 +615,7 @@ def refine_geometry_dic(
     converged = False
     jac = None
     update = None
+    gain = np.inf
     for it in range(max_iterations):
         jac = problem.jacobian(state["geometry"], state["rotations"], state["field"], jacobian)
         lam = damping
@@ -653,6 +656,9 @@ def refine_geometry_dic(
                 break
             lam *= 10
         if not step_taken:
+            # No step lowers the displacement any more: converged if the
+            # NCC had stopped gaining too (the paper's criterion)
+            converged = bool(history) and any(h["accepted"] for h in history) and gain < ncc_tolerance
             break
         if gain < ncc_tolerance and fall < 0.1:
             converged = True

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Update", "solve_update", "coupling_matrix", "expand_weights"]
+__all__ = ["Update", "solve_update", "coupling_matrix"]
 
 
 @dataclass(frozen=True)
@@ -56,18 +56,6 @@ class Update:
     null_space: np.ndarray
     column_norms: np.ndarray
     predicted_residual: np.ndarray
-
-
-def expand_weights(weights: np.ndarray) -> np.ndarray:
-    """Return ROI weights (R,) repeated for the (x, y) rows of ``b`` (2R,).
-
-    Examples
-    --------
-    >>> from kikuchipy_geomdic.solve import expand_weights
-    >>> expand_weights([0.5, 1.0]).tolist()
-    [0.5, 0.5, 1.0, 1.0]
-    """
-    return np.repeat(np.asarray(weights, dtype=np.float64), 2)
 
 
 def solve_update(
@@ -134,7 +122,7 @@ def solve_update(
             "(2R, K) and (2R,)"
         )
     if w.shape == (j.shape[0] // 2,):
-        w = expand_weights(w)
+        w = np.repeat(w, 2)
     if w.shape != b.shape:
         raise ValueError(f"weights {w.shape} fit neither R nor 2R = {b.shape[0]}")
     if not (np.isfinite(j).all() and np.isfinite(b).all() and np.isfinite(w).all()):
@@ -194,7 +182,7 @@ def coupling_matrix(jacobian: np.ndarray, weights: np.ndarray | None = None) -> 
     if weights is not None:
         w = np.asarray(weights, dtype=np.float64)
         if w.shape == (j.shape[0] // 2,):
-            w = expand_weights(w)
+            w = np.repeat(w, 2)
         j = j * w[:, None]
     n = np.linalg.norm(j, axis=0)
     n = np.where(n > 0, n, 1.0)
