@@ -116,8 +116,11 @@ def simulate_patterns(
             det,
             energy,
             dtype_out=np.float32,
-            compute=True,
+            compute=False,
             show_progressbar=False,
         )
-        out[start:stop] = sim.data.reshape((stop - start,) + tuple(detector.shape))
+        # compute=True stores into a local NumPy array that a
+        # dask.distributed cluster never fills (kikuchipy 0.13.1)
+        data = np.asarray(sim.data.compute(scheduler="threads"))
+        out[start:stop] = data.reshape((stop - start,) + tuple(detector.shape))
     return out

@@ -1,0 +1,291 @@
+"""Tests of :mod:`kikuchipy_geomdic.reindex` (issue: whole-map reindexing,
+scale, robustness).
+
+Maps are synthetic (4 x 5 patterns of 60 x 60 px) with known orientations;
+the starting orientations are 0.3 deg off, so refinement has to work for
+the tests to pass. The distributed test runs the calibration and a
+reindex on a ``LocalCluster`` of two worker processes and compares with
+the serial run.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+
+import dask.array as da
+import kikuchipy as kp
+import numpy as np
+import pytest
+from orix import io as orix_io
+from orix.crystal_map import CrystalMap
+from orix.quaternion import Rotation
+
+from kikuchipy_geomdic import synthetic
+from kikuchipy_geomdic.refinement import refine_geometry_dic
+from kikuchipy_geomdic.reindex import (
+    match_phase,
+    phases_match,
+    reindex,
+    replace_phase,
+    usable_points,
+)
+
+NAV = (4, 5)
+#: Mean misorientation (deg) to the truth after reindexing at the true
+#: geometry, against about 0.3 deg at the start.
+MISORIENTATION_TOL = 0.03
+
+
+@pytest.fixture(scope="module")
+def sm(si_mp):
+    return synthetic.synthetic_map(si_mp, NAV, shape=(60, 60), seed=4)
+
+
+def misorientation(xmap: CrystalMap, truth: CrystalMap) -> np.ndarray:
+    return np.rad2deg((xmap.rotations * ~truth.rotations).angle)
+
+
+def _map_like(xmap, quats=None, phase_id=None):
+    q = xmap.rotations.data.copy() if quats is None else quats
+    pid = xmap.phase_id.copy() if phase_id is None else phase_id
+    return CrystalMap(Rotation(q), phase_id=pid, x=xmap.x, y=xmap.y,
+                      phase_list=xmap.phases, scan_unit="um")
+
+
+@pytest.fixture(scope="module")
+def refined(sm):
+    return reindex(sm.signal, sm.start_xmap, sm.detector, sm.master_pattern, sm.energy,
+                   show_progressbar=False)
+
+
+def test_reindex_recovers_true_orientations(sm, refined):
+    start = misorientation(sm.start_xmap, sm.xmap)
+    after = misorientation(refined, sm.xmap)
+    assert start.mean() > 0.2  # the start is off: the test can fail
+    assert after.mean() < MISORIENTATION_TOL
+    assert refined.shape == NAV
+    np.testing.assert_array_equal(refined.x, sm.start_xmap.x)
+    np.testing.assert_array_equal(refined.y, sm.start_xmap.y)
+    assert refined.refined.all() and refined.scores.min() > 0.99
+    assert refined.num_evals.min() > 0
+    assert refined.phases[0].point_group.name == "m-3m"
+
+
+def test_inputs_not_modified(sm, si_mp):
+    signal = sm.signal.deepcopy()
+    xmap = sm.start_xmap.deepcopy()
+    det = sm.detector.deepcopy()
+    reindex(signal, xmap, det, si_mp, 20, show_progressbar=False, method_kwargs={
+        "method": "Nelder-Mead", "options": {"maxfev": 20}})
+    np.testing.assert_array_equal(signal.data, sm.signal.data)
+    np.testing.assert_array_equal(xmap.rotations.data, sm.start_xmap.rotations.data)
+    np.testing.assert_array_equal(xmap.phase_id, sm.start_xmap.phase_id)
+    np.testing.assert_array_equal(det.pc, sm.detector.pc)
+    assert set(xmap.prop) == set(sm.start_xmap.prop)
+
+
+def test_lazy_signal_stays_lazy_and_equals_eager(tmp_path, sm, refined):
+    path = tmp_path / "map.h5"
+    sm.signal.save(path)
+    lazy = kp.load(path, lazy=True)
+    assert isinstance(lazy.data, da.Array)
+    out = reindex(lazy, sm.start_xmap, sm.detector, sm.master_pattern, sm.energy,
+                  show_progressbar=False)
+    assert lazy._lazy and isinstance(lazy.data, da.Array)
+    np.testing.assert_array_equal(out.rotations.data, refined.rotations.data)
+    np.testing.assert_array_equal(out.scores, refined.scores)
+
+
+def test_unusable_points_excluded(sm):
+    """Not indexed, zero and NaN rotations and NaN patterns are not
+    refined; masked points keep what they had."""
+    signal = sm.signal.deepcopy()
+    signal.data[3, 4] = np.nan  # NaN pattern
+    q = sm.start_xmap.rotations.data.copy()
+    q[1] = 0.0  # zero rotation
+    q[2] = np.nan  # NaN rotation
+    pid = sm.start_xmap.phase_id.copy()
+    pid[3] = -1  # not indexed
+    xmap = _map_like(sm.start_xmap, q, pid)
+    mask = np.zeros(NAV, dtype=bool)
+    mask[2, 2] = True  # masked out by the user
+    assert usable_points(xmap).sum() == 17
+    out = reindex(signal, xmap, sm.detector, sm.master_pattern, sm.energy,
+                  navigation_mask=mask, show_progressbar=False)
+    refined = out.refined.astype(bool)
+    flat_nan, flat_mask = 3 * 5 + 4, 2 * 5 + 2
+    assert np.flatnonzero(~refined).tolist() == [1, 2, 3, flat_mask, flat_nan]
+    assert (out.phase_id[[1, 2, 3, flat_nan]] == -1).all()
+    assert out.phase_id[flat_mask] == xmap.phase_id[flat_mask]
+    np.testing.assert_array_equal(out.rotations.data[flat_mask], xmap.rotations.data[flat_mask])
+    assert (out.scores[~refined] == 0).all()
+    assert np.isfinite(out.rotations.data).all()
+    assert misorientation(out[out.refined == 1], sm.xmap[out.refined == 1]).mean() < MISORIENTATION_TOL
+
+
+def test_phase_read_from_ang_is_matched(tmp_path, sm):
+    """orix reads an .ang phase as its proper point group (432): kikuchipy
+    alone refuses it against the m-3m master pattern; reindex matches it."""
+    orix_io.save(tmp_path / "map.ang", sm.start_xmap)
+    with contextlib.redirect_stdout(io.StringIO()):
+        xmap = orix_io.load(tmp_path / "map.ang")
+    assert xmap.phases[xmap.phase_id[0]].point_group.name == "432"
+    with pytest.raises(ValueError, match="must be the same"), contextlib.redirect_stdout(io.StringIO()):
+        sm.signal.refine_orientation(xmap, sm.detector, sm.master_pattern, 20)
+    out = reindex(sm.signal, xmap, sm.detector, sm.master_pattern, sm.energy,
+                  show_progressbar=False, method_kwargs={"method": "Nelder-Mead",
+                                                         "options": {"maxfev": 30}})
+    assert out.refined.all()
+    assert out.phases[out.phase_id[0]].point_group.name == "m-3m"
+
+
+def test_master_pattern_of_another_phase_is_refused(sm, bto_mp):
+    with pytest.raises(ValueError, match="matches none of the map's phases"):
+        reindex(sm.signal, sm.start_xmap, sm.detector, bto_mp, 20, show_progressbar=False)
+    assert not phases_match(sm.xmap.phases[0], bto_mp.phase)
+    with pytest.raises(ValueError, match="does not match"):
+        match_phase(sm.xmap, bto_mp, phase="Si")
+
+
+def test_phases_match_rules(sm):
+    si = sm.master_pattern.phase
+    other = si.deepcopy()
+    other.name = "silicon"
+    assert phases_match(si, other)  # same crystal, other name: lattice decides
+    nm = si.deepcopy()
+    nm.structure.lattice.setLatPar(0.5431, 0.5431, 0.5431)
+    assert phases_match(si, nm)  # nm against angstrom
+    nm.structure.lattice.setLatPar(0.3524, 0.3524, 0.3524)
+    assert not phases_match(si, nm)  # nickel's cell
+
+
+def test_shape_mismatches_and_options_refused(sm):
+    small = sm.start_xmap[:3, :]
+    with pytest.raises(ValueError, match="differs from the patterns"):
+        reindex(sm.signal, replace_phase(_map_like(small), 0, sm.master_pattern.phase),
+                sm.detector, sm.master_pattern, 20)
+    det = sm.detector.deepcopy()
+    det.pc = det.pc[:3]
+    with pytest.raises(ValueError, match="PCs"):
+        reindex(sm.signal, sm.start_xmap, det, sm.master_pattern, 20)
+    with pytest.raises(ValueError, match="computes"):
+        reindex(sm.signal, sm.start_xmap, sm.detector, sm.master_pattern, 20, compute=False)
+    none = _map_like(sm.start_xmap, phase_id=np.full(20, -1))
+    with pytest.raises(ValueError, match="no indexed points"):
+        reindex(sm.signal, none, sm.detector, sm.master_pattern, 20)
+
+
+def test_progress_output_only_when_asked(capsys, sm):
+    kw = dict(method_kwargs={"method": "Nelder-Mead", "options": {"maxfev": 5}})
+    reindex(sm.signal, sm.start_xmap, sm.detector, sm.master_pattern, 20,
+            show_progressbar=False, **kw)
+    assert capsys.readouterr().out == ""
+    reindex(sm.signal, sm.start_xmap, sm.detector, sm.master_pattern, 20,
+            show_progressbar=True, **kw)
+    assert "Refining 20 orientation(s)" in capsys.readouterr().out
+
+
+def test_writes_to_ang_and_orix_h5(tmp_path, sm, refined):
+    orix_io.save(tmp_path / "r.h5", refined)
+    back = orix_io.load(tmp_path / "r.h5")
+    np.testing.assert_allclose(back.rotations.data, refined.rotations.data)
+    np.testing.assert_allclose(back.scores, refined.scores)
+    orix_io.save(tmp_path / "r.ang", refined, confidence_index_prop="scores")
+    with contextlib.redirect_stdout(io.StringIO()):
+        ang = orix_io.load(tmp_path / "r.ang")
+    assert misorientation(ang, refined).max() < 1e-3  # .ang stores 5 decimals
+    np.testing.assert_allclose(ang.ci, refined.scores, atol=1e-5)
+
+
+# --------------------------------------------------------------------- #
+# dask.distributed
+# --------------------------------------------------------------------- #
+
+
+@pytest.fixture(scope="module")
+def client():
+    """A LocalCluster of two worker processes (one thread each)."""
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def small(si_mp):
+    """Requested before ``client`` in each test: simulated with no client
+    active, as a user would have it."""
+    return synthetic.synthetic_map(si_mp, (3, 4), shape=(60, 60), seed=5)
+
+
+def _on_cluster(client, func):
+    """Run *func* with *client* active; return its result and the workers
+    that ran tasks meanwhile."""
+    import distributed
+
+    with distributed.get_task_stream(client) as stream:
+        out = func()
+    return out, {t["worker"] for t in stream.data}
+
+
+def test_reindex_on_cluster_equals_serial(small, client):
+    def run():
+        return reindex(small.signal, small.start_xmap, small.detector,
+                       small.master_pattern, small.energy, show_progressbar=False)
+
+    with distributed_off(client):
+        serial = run()
+    dist, workers = _on_cluster(client, run)
+    assert len(workers) >= 1  # the work really ran on the cluster
+    np.testing.assert_array_equal(dist.rotations.data, serial.rotations.data)
+    np.testing.assert_array_equal(dist.scores, serial.scores)
+    assert misorientation(serial, small.xmap).mean() < MISORIENTATION_TOL
+
+
+def test_calibration_on_cluster_equals_serial(small, client):
+    kw = dict(points=12, rois=(6, 6), max_iterations=2, show_progressbar=False)
+
+    def run():
+        return refine_geometry_dic(small.signal, small.start_xmap, small.start_detector,
+                                   small.master_pattern, small.energy, **kw)
+
+    with distributed_off(client):
+        serial = run()
+    dist, workers = _on_cluster(client, run)
+    assert len(workers) >= 1
+    assert dist.parameters == serial.parameters
+    np.testing.assert_array_equal(dist.detector.pc, serial.detector.pc)
+
+
+@contextlib.contextmanager
+def distributed_off(client):
+    """The default (threaded) scheduler while *client* exists."""
+    import dask
+
+    with dask.config.set(scheduler="threads"):
+        yield
+
+
+def test_cli_scheduler_option_runs_on_the_cluster(tmp_path, small, client, capsys):
+    """``kikuchipy-geomdic reindex --scheduler ADDRESS`` gives the API's
+    serial result, computed on the cluster."""
+    from kikuchipy_geomdic import cli
+    from kikuchipy_geomdic.conventions import save_detector
+
+    small.signal.save(tmp_path / "map.h5")
+    orix_io.save(str(tmp_path / "start.h5"), small.start_xmap)
+    save_detector(small.detector, tmp_path / "detector.txt")
+    with distributed_off(client):
+        serial = reindex(small.signal, small.start_xmap, small.detector,
+                         small.master_pattern, small.energy, show_progressbar=False)
+    argv = ["reindex", tmp_path / "map.h5", "--orientations", tmp_path / "start.h5",
+            "--master-pattern", "Si", "--energy", "20", "--detector", tmp_path / "detector.txt",
+            "--scheduler", client.scheduler.address, "--quiet", "--out", tmp_path / "o"]
+    code, workers = _on_cluster(client, lambda: cli.main([str(a) for a in argv]))
+    assert code == 0, capsys.readouterr().err
+    assert len(workers) >= 1
+    out = orix_io.load(str(tmp_path / "o" / "xmap_refined.h5"))
+    # The start orientations went through an orix h5 file (Euler angles)
+    np.testing.assert_allclose(out.rotations.data, serial.rotations.data, rtol=0, atol=1e-12)
