@@ -55,6 +55,7 @@ __all__ = [
     "sample_to_detector_matrix",
     "pc_field",
     "forward_map",
+    "copy_detector",
     "update_detector",
 ]
 
@@ -333,6 +334,41 @@ def forward_map(
     return x_b, y_b
 
 
+def copy_detector(detector: EBSDDetector, **changes) -> EBSDDetector:
+    """Return a new detector with the same attributes, some changed.
+
+    Parameters
+    ----------
+    detector
+        Detector to copy; not modified.
+    **changes
+        Keyword arguments of :class:`~kikuchipy.detectors.EBSDDetector`
+        to replace (``pc`` in the Bruker convention).
+
+    Returns
+    -------
+    new_detector
+
+    Examples
+    --------
+    >>> from kikuchipy.detectors import EBSDDetector
+    >>> from kikuchipy_geomdic.geometry import copy_detector
+    >>> det = EBSDDetector((60, 60), binning=2, twist=0.3)
+    >>> new = copy_detector(det, shape=(30, 30), binning=4)
+    >>> new.shape, new.binning, new.twist
+    ((30, 30), 4, 0.3)
+    """
+    kw = dict(
+        shape=detector.shape,
+        px_size=detector.px_size,
+        binning=detector.binning,
+        pc=detector.pc.copy(),
+        **{a: getattr(detector, a) for a in _ANGLES},
+    )
+    kw.update(changes)
+    return EBSDDetector(convention="bruker", **kw)
+
+
 def update_detector(
     detector: EBSDDetector, delta: Mapping[str, float]
 ) -> EBSDDetector:
@@ -371,14 +407,7 @@ def update_detector(
     for i, name in enumerate(("pcx", "pcy", "pcz")):
         pc[..., i] += delta.get(name, 0.0)
     angles = {a: getattr(detector, a) + delta.get(a, 0.0) for a in _ANGLES}
-    return EBSDDetector(
-        shape=detector.shape,
-        px_size=detector.px_size,
-        binning=detector.binning,
-        pc=pc,
-        convention="bruker",
-        **angles,
-    )
+    return copy_detector(detector, pc=pc, **angles)
 
 
 @dataclass(frozen=True)

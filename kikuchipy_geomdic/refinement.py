@@ -56,6 +56,7 @@ from kikuchipy_geomdic.geometry import (
     EQUIVALENT_PARAMETERS,
     MapGeometry,
     check_parameters,
+    copy_detector,
 )
 from kikuchipy_geomdic.jacobian import analytic_jacobian, finite_difference_jacobian
 from kikuchipy_geomdic.simulation import check_master_pattern, simulate_patterns
@@ -376,11 +377,7 @@ class _Problem:
         if b > 1:
             # Bruker PC fractions do not change with binning
             exp = exp.reshape(n, exp.shape[1] // b, b, exp.shape[2] // b, b).mean(axis=(2, 4))
-            det = EBSDDetector(
-                shape=exp.shape[1:], px_size=det.px_size, binning=det.binning * b,
-                tilt=det.tilt, azimuthal=det.azimuthal, sample_tilt=det.sample_tilt,
-                twist=det.twist, pc=det.pc,
-            )
+            det = copy_detector(det, shape=exp.shape[1:], binning=det.binning * b)
         signal = EBSD(exp)
         signal.axes_manager.navigation_axes[0].name = "x"
         xmap = CrystalMap(

@@ -14,6 +14,8 @@ from kikuchipy.detectors import EBSDDetector
 from kikuchipy.signals import EBSDMasterPattern
 from orix.quaternion import Rotation
 
+from kikuchipy_geomdic.geometry import copy_detector
+
 __all__ = ["check_master_pattern", "simulate_patterns"]
 
 #: Memory budget for direction cosines of one chunk.
@@ -98,19 +100,10 @@ def simulate_patterns(
         return out
     # kikuchipy builds float64 direction cosines of (chunk, pixels, 3)
     chunk = max(1, int(max_bytes // (detector.size * 3 * 8)))
-    kw = dict(
-        shape=detector.shape,
-        px_size=detector.px_size,
-        binning=detector.binning,
-        tilt=detector.tilt,
-        azimuthal=detector.azimuthal,
-        sample_tilt=detector.sample_tilt,
-        twist=detector.twist,
-    )
     for start in range(0, n, chunk):
         stop = min(n, start + chunk)
         pc = pcs if pcs.shape[0] == 1 else pcs[start:stop]
-        det = EBSDDetector(pc=pc, **kw)
+        det = copy_detector(detector, pc=pc)
         sim = master_pattern.get_patterns(
             rotations[start:stop],
             det,

@@ -28,7 +28,7 @@ from orix.crystal_map import CrystalMap, Phase, PhaseList
 from orix.quaternion import Rotation
 from scipy import ndimage
 
-from kikuchipy_geomdic.geometry import MapGeometry
+from kikuchipy_geomdic.geometry import MapGeometry, copy_detector
 from kikuchipy_geomdic.simulation import check_master_pattern, simulate_patterns
 
 __all__ = [
@@ -490,21 +490,12 @@ def _simulate_map(master_pattern, quats, pcs, geometry, energy, degrade) -> da.A
     chunks = (min(rows_per_chunk, nav[0]), nav[1])
     q = da.from_array(quats, chunks=chunks + (4,))
     p = da.from_array(pcs, chunks=chunks + (3,))
-    kw = dict(
-        shape=geometry.shape,
-        px_size=geometry.px_size,
-        binning=geometry.binning,
-        tilt=geometry.tilt,
-        azimuthal=geometry.azimuthal,
-        sample_tilt=geometry.sample_tilt,
-        twist=geometry.twist,
-    )
     return da.map_blocks(
         _simulate_block,
         q,
         p,
         master_pattern=master_pattern,
-        detector_kw=kw,
+        template=geometry.detector(points=[[0, 0]]),
         energy=energy,
         degrade=degrade,
         nav_cols=nav[1],
@@ -516,10 +507,10 @@ def _simulate_map(master_pattern, quats, pcs, geometry, energy, degrade) -> da.A
 
 
 def _simulate_block(
-    q, p, master_pattern, detector_kw, energy, degrade, nav_cols, block_info=None
+    q, p, master_pattern, template, energy, degrade, nav_cols, block_info=None
 ):
     shape = q.shape[:2]
-    det = EBSDDetector(pc=p.reshape(-1, 3), **detector_kw)
+    det = copy_detector(template, pc=p.reshape(-1, 3))
     patterns = simulate_patterns(master_pattern, Rotation(q.reshape(-1, 4)), det, energy)
     # Flat map indices so that noise does not depend on the chunking
     (r0, _), (c0, _) = block_info[0]["array-location"][:2]
