@@ -618,7 +618,10 @@ def refine_geometry_dic(
         start_rotations=start_rot,
         master_pattern=master_pattern,
         energy=float(energy),
-        phase=xmap.phases[phase_id].deepcopy(),
+        # The master pattern's phase, checked above to have xmap's point
+        # group: kikuchipy refuses phases whose atom lists differ in order
+        # (as after a round trip through an h5ebsd file)
+        phase=master_pattern.phase.deepcopy(),
         parameters=names,
         steps={n: step_all[n] for n in names},
         dic_kwargs=dic_kw,
