@@ -7,7 +7,15 @@ over :func:`kikuchipy_geomdic.refinement.refine_geometry_dic`.
 
 from kikuchipy.signals import EBSD
 
-from kikuchipy_geomdic import displacement, geometry, jacobian, simulation, solve, synthetic
+from kikuchipy_geomdic import (
+    displacement,
+    geometry,
+    jacobian,
+    simulation,
+    solve,
+    synthetic,
+    validation,
+)
 from kikuchipy_geomdic.refinement import GeometryRefinementResult, refine_geometry_dic
 
 __version__ = "0.1.0.dev0"
@@ -21,6 +29,7 @@ __all__ = [
     "simulation",
     "solve",
     "synthetic",
+    "validation",
     "__version__",
 ]
 

@@ -1,0 +1,1515 @@
+"""Validation against ground truth: the paper's perturbation study and a
+side-by-side comparison with pattern-wise PC refinement.
+
+Two studies, both on synthetic maps from :mod:`kikuchipy_geomdic.synthetic`
+so that every result can be scored against the truth:
+
+- :func:`perturbation_study` is section 4.1 of Griesbach & Kochmann: for
+  chosen parameter pairs, a grid of perturbations ``{0, +-d/2, +-d}`` of
+  the two parameters with the paper's ``d`` (:data:`PAPER_DELTAS`), every
+  run refining all six parameters from the same starting geometry, with
+  the *true* orientations as the start (as in the paper, where the base
+  and "experimental" data sets share their orientations). It returns a
+  :class:`PerturbationStudy`: a table with one row per run and the
+  figures of the paper's Figs. 8 and 9.
+- :func:`compare_methods` runs :func:`~kikuchipy_geomdic.refine_geometry_dic`
+  and kikuchipy's pattern-wise
+  :meth:`~kikuchipy.signals.EBSD.refine_orientation_projection_center`
+  (Nelder-Mead and differential evolution, PCs then averaged over the
+  points, as the paper did in section 3.1) on the same map and start, and
+  reports wall time and errors against the truth side by side.
+
+Success criteria
+----------------
+A run succeeds in the paper's sense (``success_ncc``) when the mean NCC
+of the refined orientations at the refined geometry exceeds
+:data:`NCC_SUCCESS` (0.9). Because NCC barely tells a right geometry from
+one whose error was absorbed by the orientations (see the field notes),
+a stricter criterion (``success``) is used as well: the mean
+misorientation of the refined orientations to the truth is below
+:data:`MISORIENTATION_SUCCESS` (0.1 deg) *and* the largest PC error is
+below :data:`PC_SUCCESS` (1e-3, 0.1 % of the detector). PC errors are
+compared at the map centre (the reference of the PC field).
+
+Displacements
+-------------
+The paper's x axis is the mean displacement magnitude between the
+starting and the true pattern sets. Two versions are reported, both from
+the geometry model
+(:meth:`~kikuchipy_geomdic.geometry.MapGeometry.displacement`), so free
+of DIC tracking errors and defined also where DIC would no longer find
+the features: :func:`mean_displacement` averages the model field over
+every pixel of every calibration pattern per ROI, then takes the mean
+magnitude over ROIs divided by the detector width;
+:func:`eq2_displacement` samples it where DIC finds vectors and averages
+as the paper's Eq. 2 does (an ROI without vectors in a pattern adds
+zero), which is the paper's measure and comes out smaller. The
+DIC-measured values of the refinement are kept beside them.
+
+Tilt and sample tilt
+--------------------
+In kikuchipy's projection only ``tilt - sample_tilt`` is observable (see
+:mod:`~kikuchipy_geomdic.geometry`); the refinement splits a change of it
+equally between the two. Their individual errors are therefore reported
+but the meaningful one is ``err_tilt_difference``, the error of
+``tilt - sample_tilt``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import itertools
+import time
+import warnings
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+from kikuchipy.signals import EBSD, EBSDMasterPattern
+from orix.crystal_map import CrystalMap, PhaseList
+from orix.quaternion import Rotation
+
+from kikuchipy_geomdic import displacement as dsp
+from kikuchipy_geomdic import synthetic
+from kikuchipy_geomdic.geometry import DEFAULT_PARAMETERS, DEFAULT_STEPS, MapGeometry
+from kikuchipy_geomdic.refinement import calibration_points, refine_geometry_dic
+from kikuchipy_geomdic.solve import coupling_matrix
+
+__all__ = [
+    "PAPER_DELTAS",
+    "PAPER_LEVELS",
+    "PAPER_PAIRS",
+    "NCC_SUCCESS",
+    "MISORIENTATION_SUCCESS",
+    "PC_SUCCESS",
+    "paper_geometry",
+    "mean_displacement",
+    "eq2_displacement",
+    "sensitivities",
+    "PerturbationStudy",
+    "perturbation_study",
+    "read_table",
+    "summarise",
+    "plot_success",
+    "plot_heatmaps",
+    "plot_errors",
+    "plot_normalised_errors",
+    "compare_methods",
+    "format_table",
+]
+
+#: The paper's maximum perturbation ``d`` per parameter (section 4.1):
+#: PC fractions and degrees.
+PAPER_DELTAS = {
+    "pcx": 0.05,
+    "pcy": 0.05,
+    "pcz": 0.08,
+    "tilt": 1.0,
+    "azimuthal": 1.0,
+    "sample_tilt": 3.0,
+}
+
+#: Perturbation levels as fractions of ``d``: ``{0, +-d/2, +-d}``.
+PAPER_LEVELS = (-1.0, -0.5, 0.0, 0.5, 1.0)
+
+#: The 15 parameter pairs of the paper's six parameters.
+PAPER_PAIRS = tuple(itertools.combinations(DEFAULT_PARAMETERS, 2))
+
+#: Final mean NCC above which a run succeeds in the paper's sense.
+NCC_SUCCESS = 0.9
+#: Mean misorientation to the truth (deg) below which a run may succeed
+#: in the strict sense.
+MISORIENTATION_SUCCESS = 0.1
+#: Largest PC error (at the map centre) below which a run may succeed in
+#: the strict sense.
+PC_SUCCESS = 1e-3
+
+_PC = ("pcx", "pcy", "pcz")
+
+
+# --------------------------------------------------------------------- #
+# Model displacements and sensitivities
+# --------------------------------------------------------------------- #
+
+
+def paper_geometry(
+    navigation_shape: tuple[int, int] = (10, 10),
+    shape: tuple[int, int] = (60, 60),
+    field_of_view: float = 500.0,
+) -> MapGeometry:
+    """Return a starting geometry like the paper's BaTiO3 set-up.
+
+    The nominal geometry of the paper's Table 3 (Bruker PC about
+    (0.50, 0.20, 0.87), detector tilt 10 deg, sample tilt 70 deg,
+    azimuthal 0) on the detector and field of view of
+    :func:`~kikuchipy_geomdic.synthetic.default_geometry`. With ``pcz``
+    0.87 rather than 0.62 the same PC perturbation moves the pattern
+    less, as in the paper.
+
+    Parameters
+    ----------
+    navigation_shape, shape, field_of_view
+        As in :func:`~kikuchipy_geomdic.synthetic.default_geometry`.
+
+    Returns
+    -------
+    geometry
+
+    Examples
+    --------
+    >>> from kikuchipy_geomdic.validation import paper_geometry
+    >>> paper_geometry((5, 5), (60, 60)).pc
+    (0.5, 0.2, 0.87)
+    """
+    from dataclasses import replace
+
+    geo = synthetic.default_geometry(navigation_shape, shape, field_of_view)
+    return replace(geo, pc=(0.5, 0.2, 0.87), tilt=10.0, azimuthal=0.0, sample_tilt=70.0)
+
+
+def _pixel_grid(shape: tuple[int, int], max_side: int = 60):
+    step = max(1, int(np.ceil(max(shape) / max_side)))
+    y, x = np.mgrid[0 : shape[0] : step, 0 : shape[1] : step]
+    return x.ravel().astype(float), y.ravel().astype(float)
+
+
+def _average_field(
+    geometry_a: MapGeometry, geometry_b: MapGeometry, points: np.ndarray, rois
+) -> np.ndarray:
+    """ROI-averaged model displacement (R, 2) from A to B, over *points*."""
+    x, y = _pixel_grid(geometry_a.shape)
+    uv = geometry_a.displacement(geometry_b, points, x, y)  # (n, m, 2)
+    idx = dsp.roi_index(x, y, geometry_a.shape, rois)
+    n_rois = rois[0] * rois[1]
+    out = np.zeros((n_rois, 2))
+    valid = np.isfinite(uv).all(axis=-1)  # (n, m)
+    for c in range(2):
+        vals = np.where(valid, uv[..., c], 0.0)
+        s = np.zeros(n_rois)
+        cnt = np.zeros(n_rois)
+        np.add.at(s, idx, vals.sum(axis=0))
+        np.add.at(cnt, idx, valid.sum(axis=0))
+        out[:, c] = s / np.maximum(cnt, 1)
+    return out
+
+
+def mean_displacement(
+    geometry_a: MapGeometry,
+    geometry_b: MapGeometry,
+    points: np.ndarray | None = None,
+    rois: tuple[int, int] = (8, 8),
+) -> float:
+    """Return the paper's mean displacement magnitude between geometries.
+
+    The forward displacement from geometry A to B is evaluated at every
+    pixel of the pattern at every calibration point (every fourth pixel
+    or so for patterns larger than 60 px), averaged per ROI and over the
+    points (Eq. 2), and the mean magnitude over ROIs is divided by the
+    detector width.
+
+    Parameters
+    ----------
+    geometry_a, geometry_b
+        :class:`~kikuchipy_geomdic.geometry.MapGeometry` of one map and
+        detector shape.
+    points
+        Calibration points (N, 2) (row, column); default the whole map.
+    rois
+        ROI grid (rows, columns).
+
+    Returns
+    -------
+    displacement
+        Fraction of the detector width.
+
+    Examples
+    --------
+    >>> from kikuchipy_geomdic import synthetic
+    >>> from kikuchipy_geomdic.validation import mean_displacement
+    >>> geo = synthetic.default_geometry((5, 5), (60, 60))
+    >>> d = mean_displacement(geo, geo.updated({"pcx": 0.02}))
+    >>> round(d, 4)  # pcx moves the whole pattern by 2 % of its width
+    0.02
+    """
+    if points is None:
+        rows, cols = np.indices(geometry_a.navigation_shape)
+        points = np.stack([rows.ravel(), cols.ravel()], axis=1)
+    f = _average_field(geometry_a, geometry_b, np.asarray(points), tuple(rois))
+    return float(np.linalg.norm(f, axis=1).mean() / geometry_a.shape[1])
+
+
+def eq2_displacement(
+    master_pattern: EBSDMasterPattern,
+    rotations: Rotation,
+    geometry_a: MapGeometry,
+    geometry_b: MapGeometry,
+    points: np.ndarray,
+    energy: float = 20.0,
+    rois: tuple[int, int] = (8, 8),
+    seed: int = 0,
+    **dic_kwargs,
+) -> tuple[float, float]:
+    """Return the mean displacement as the paper measured it (Eq. 2).
+
+    Patterns are simulated at the calibration points with *rotations*
+    under geometry A (the paper's :math:`\mathbf{A}^0`) and B (the
+    "experimental" :math:`\mathbf{B}`), and DIC is run between them. The
+    model displacement from A to B is then evaluated where DIC measured
+    (the vectors' positions) and averaged as Eq. 2 averages: an ROI without
+    vectors in a pattern adds zero and the sum is divided by N. This is
+    what the paper's displacement axis is, without the tracking errors that
+    make DIC fail at large displacements; it is smaller than
+    :func:`mean_displacement` because of the zeros.
+
+    Parameters
+    ----------
+    master_pattern
+        Lambert master pattern.
+    rotations
+        Orientations at *points* (N,).
+    geometry_a, geometry_b
+        Starting and true geometry.
+    points
+        Calibration points (N, 2).
+    energy
+        Beam energy in kV.
+    rois
+        ROI grid.
+    seed
+        Seed of the DIC.
+    **dic_kwargs
+        Further options of
+        :func:`~kikuchipy_geomdic.displacement.measure_displacements`.
+
+    Returns
+    -------
+    model, measured
+        Mean magnitude over ROIs with vectors, fraction of the detector
+        width: the model field at the measured positions, and the field
+        DIC measured.
+    """
+    from kikuchipy_geomdic.simulation import simulate_patterns
+
+    points = np.asarray(points)
+    a = simulate_patterns(master_pattern, rotations, geometry_a.detector(points), energy)
+    b = simulate_patterns(master_pattern, rotations, geometry_b.detector(points), energy)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        f = dsp.measure_displacements(a, b, rois=tuple(rois), seed=seed, **dic_kwargs)
+    pos = f.positions  # (N, R, 2)
+    uv = geometry_a.displacement(geometry_b, points, pos[..., 0], pos[..., 1])
+    uv = np.where((f.counts > 0)[..., None] & np.isfinite(uv), uv, 0.0)
+    mean = uv.sum(axis=0) / len(points)
+    has = f.total_counts > 0
+    if not has.any():
+        return float("nan"), float("nan")
+    model = float(np.linalg.norm(mean[has], axis=1).mean() / geometry_a.shape[1])
+    return model, dsp_mean(f)
+
+
+def sensitivities(
+    geometry: MapGeometry,
+    points: np.ndarray | None = None,
+    parameters: Sequence[str] = DEFAULT_PARAMETERS,
+    steps: Mapping[str, float] | None = None,
+    rois: tuple[int, int] = (8, 8),
+) -> tuple[dict[str, float], np.ndarray]:
+    """Return the normalisation of the paper's Eq. 12 and the coupling.
+
+    For each parameter ``k`` the model displacement field between
+    ``p - delta_k`` and ``p + delta_k`` gives the mean magnitude
+    ``d_N`` (fraction of the detector width); ``d_N / (2 delta_k)`` is the
+    mean displacement per unit of the parameter, and a parameter error
+    ``eps_k`` has the normalised error ``eps_k d_N / (2 delta_k)``
+    (Eq. 12): the error expressed as a displacement.
+
+    Parameters
+    ----------
+    geometry
+        Geometry at which the sensitivities are taken.
+    points
+        Calibration points (N, 2); default the whole map.
+    parameters
+        Parameter names.
+    steps
+        ``delta_k``; default :data:`~kikuchipy_geomdic.geometry.DEFAULT_STEPS`.
+    rois
+        ROI grid.
+
+    Returns
+    -------
+    scale
+        ``{name: d_N / (2 delta_k)}`` (fraction of the width per unit).
+    coupling
+        Coupling matrix (K, K) of the ROI-averaged sensitivity fields
+        (the paper's Fig. 3C).
+
+    Examples
+    --------
+    >>> from kikuchipy_geomdic import synthetic
+    >>> from kikuchipy_geomdic.validation import sensitivities
+    >>> geo = synthetic.default_geometry((5, 5), (60, 60))
+    >>> scale, coupling = sensitivities(geo)
+    >>> round(scale["pcx"], 3)  # a pcx change moves everything by itself
+    1.0
+    >>> round(float(coupling[3, 5]), 3)  # tilt and sample_tilt: opposite
+    -1.0
+    """
+    if points is None:
+        rows, cols = np.indices(geometry.navigation_shape)
+        points = np.stack([rows.ravel(), cols.ravel()], axis=1)
+    st = dict(DEFAULT_STEPS)
+    st.update(steps or {})
+    scale, cols_ = {}, []
+    for k in parameters:
+        d = st[k]
+        f = _average_field(
+            geometry.updated({k: -d}), geometry.updated({k: d}), np.asarray(points), rois
+        )
+        scale[k] = float(np.linalg.norm(f, axis=1).mean() / geometry.shape[1] / (2 * d))
+        cols_.append(f.ravel() / (2 * d))
+    return scale, coupling_matrix(np.stack(cols_, axis=1))
+
+
+# --------------------------------------------------------------------- #
+# Scoring helpers
+# --------------------------------------------------------------------- #
+
+
+def _misorientation(a: Rotation, b: Rotation) -> np.ndarray:
+    """Rotation angle (deg) between rotations, no crystal symmetry: the
+    refined orientations start at (or near) the truth and move
+    continuously, so a symmetry-equivalent jump would itself be a
+    failure."""
+    return np.rad2deg((a * ~b).angle)
+
+
+def _mean_rotation(rot: Rotation) -> Rotation:
+    q = rot.data.reshape(-1, 4).copy()
+    q *= np.sign(q @ q[0])[:, None]
+    m = q.mean(axis=0)
+    return Rotation(m / np.linalg.norm(m))
+
+
+def _disorientation_from_mean(rot: Rotation) -> float:
+    """The paper's single-crystal metric: mean angle to the mean."""
+    return float(_misorientation(rot, _mean_rotation(rot)).mean())
+
+
+def _geometry_errors(refined: MapGeometry, truth: MapGeometry) -> dict[str, float]:
+    centre = np.array([truth.reference])
+    pc_r = refined.pc_at(centre)[0]
+    pc_t = truth.pc_at(centre)[0]
+    err = {k: float(pc_r[i] - pc_t[i]) for i, k in enumerate(_PC)}
+    for k in ("tilt", "azimuthal", "sample_tilt"):
+        err[k] = float(getattr(refined, k) - getattr(truth, k))
+    err["tilt_difference"] = err["tilt"] - err["sample_tilt"]
+    return err
+
+
+# --------------------------------------------------------------------- #
+# Tables
+# --------------------------------------------------------------------- #
+
+_STUDY_COLUMNS = (
+    [
+        ("material", "U16"),
+        ("param1", "U12"),
+        ("param2", "U12"),
+        ("level1", "f8"),
+        ("level2", "f8"),
+        ("delta1", "f8"),
+        ("delta2", "f8"),
+        ("initial_displacement", "f8"),
+        ("initial_displacement_eq2", "f8"),
+        ("initial_displacement_dic", "f8"),
+        ("final_displacement", "f8"),
+        ("final_displacement_model", "f8"),
+        ("initial_ncc", "f8"),
+        ("final_ncc", "f8"),
+        ("misorientation", "f8"),
+        ("max_misorientation", "f8"),
+    ]
+    + [(f"err_{k}", "f8") for k in DEFAULT_PARAMETERS + ("tilt_difference",)]
+    + [(f"nerr_{k}", "f8") for k in DEFAULT_PARAMETERS]
+    + [
+        ("max_pc_error", "f8"),
+        ("success_ncc", "?"),
+        ("success", "?"),
+        ("iterations", "i8"),
+        ("converged", "?"),
+        ("time", "f8"),
+    ]
+)
+
+
+def _to_table(rows: Sequence[Mapping[str, Any]], columns) -> np.ndarray:
+    dtype = np.dtype(columns)
+    out = np.zeros(len(rows), dtype=dtype)
+    for i, r in enumerate(rows):
+        for name in dtype.names:
+            out[name][i] = r.get(name, np.nan if dtype[name].kind == "f" else 0)
+    return out
+
+
+def read_table(path) -> np.ndarray:
+    """Read a table written by :meth:`PerturbationStudy.save` (CSV).
+
+    Parameters
+    ----------
+    path
+        CSV file with a header line.
+
+    Returns
+    -------
+    table
+        NumPy structured array with the study's columns.
+    """
+    raw = np.genfromtxt(path, delimiter=",", names=True, dtype=None, encoding="utf-8")
+    raw = np.atleast_1d(raw)
+    dtype = np.dtype(_STUDY_COLUMNS)
+    out = np.zeros(raw.size, dtype=dtype)
+    for name in dtype.names:
+        if dtype[name].kind == "f":
+            out[name] = np.nan
+        if name in raw.dtype.names:
+            col = raw[name]
+            if dtype[name].kind == "b":
+                col = np.array([str(v).strip().lower() in ("true", "1") for v in col])
+            out[name] = col
+    return out
+
+
+def _write_csv(table: np.ndarray, path) -> None:
+    names = table.dtype.names
+    with open(path, "w", encoding="utf-8") as f:
+        f.write(",".join(names) + "\n")
+        for row in table:
+            vals = []
+            for n in names:
+                v = row[n]
+                if table.dtype[n].kind == "f":
+                    vals.append(f"{float(v):.8g}")
+                else:
+                    vals.append(str(v))
+            f.write(",".join(vals) + "\n")
+
+
+def format_table(rows: Sequence[Mapping[str, Any]] | np.ndarray, columns=None, floatfmt="{:.4g}") -> str:
+    """Return rows (dicts or a structured array) as a Markdown table.
+
+    Parameters
+    ----------
+    rows
+        List of dicts or a NumPy structured array.
+    columns
+        Columns to show; default all (the first row's keys).
+    floatfmt
+        Format of floats.
+
+    Returns
+    -------
+    text
+
+    Examples
+    --------
+    >>> from kikuchipy_geomdic.validation import format_table
+    >>> print(format_table([{"a": 1, "b": 0.5}]))
+    | a | b |
+    |---|---|
+    | 1 | 0.5 |
+    """
+    if isinstance(rows, np.ndarray):
+        names = rows.dtype.names
+        rows = [{n: r[n] for n in names} for r in rows]
+    if not rows:
+        return ""
+    columns = list(columns or rows[0].keys())
+
+    def fmt(v):
+        if isinstance(v, (bool, np.bool_)):
+            return str(bool(v))
+        if isinstance(v, (float, np.floating)):
+            return floatfmt.format(float(v))
+        return str(v)
+
+    lines = ["| " + " | ".join(columns) + " |", "|" + "|".join("---" for _ in columns) + "|"]
+    for r in rows:
+        lines.append("| " + " | ".join(fmt(r.get(c, "")) for c in columns) + " |")
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------- #
+# The perturbation study
+# --------------------------------------------------------------------- #
+
+
+@dataclass
+class PerturbationStudy:
+    """The result of :func:`perturbation_study`.
+
+    Attributes
+    ----------
+    table
+        NumPy structured array, one row per run, with columns
+        ``material``, ``param1``, ``param2`` (the perturbed pair),
+        ``level1``, ``level2`` (fractions of ``d``), ``delta1``,
+        ``delta2`` (the perturbations, true minus starting value),
+        ``initial_displacement`` (model, fraction of detector width),
+        ``initial_displacement_eq2`` (the same averaged as the paper's
+        Eq. 2 over the DIC vectors, see :func:`eq2_displacement`: the
+        paper's axis), ``initial_displacement_dic`` (measured by the
+        refinement after the
+        first orientation refinement), ``final_displacement`` (DIC),
+        ``final_displacement_model`` (model, refined to true geometry),
+        ``initial_ncc``, ``final_ncc``, ``misorientation`` and
+        ``max_misorientation`` (deg, to the truth), ``err_<name>`` (refined
+        minus true, PCs at the map centre) and ``err_tilt_difference``,
+        ``nerr_<name>`` (Eq. 12), ``max_pc_error``, ``success_ncc``,
+        ``success`` (strict), ``iterations``, ``converged`` and ``time``
+        (s per run).
+    scale
+        ``{name: d_N / (2 delta)}`` of Eq. 12 at the starting geometry.
+    coupling
+        Coupling matrix of the six parameters at the starting geometry.
+    settings
+        The arguments of the study.
+    wall_time
+        Wall time of the whole study in seconds.
+    """
+
+    table: np.ndarray
+    scale: dict[str, float]
+    coupling: np.ndarray
+    settings: dict[str, Any] = field(default_factory=dict)
+    wall_time: float = float("nan")
+
+    def summary(
+        self, limits: Sequence[float] = (0.02, 0.04, 0.06), axis: str = "initial_displacement"
+    ) -> dict[str, Any]:
+        """Return the headline numbers of the study.
+
+        Parameters
+        ----------
+        limits
+            Initial displacements (fractions of the width) at which the
+            success rate below is reported.
+        axis
+            Displacement column: "initial_displacement" (model, every
+            pixel) or "initial_displacement_eq2" (the paper's Eq. 2
+            average over the DIC vectors).
+
+        Returns
+        -------
+        summary
+            ``runs``, ``success_ncc``, ``success`` (counts),
+            ``min_failed_displacement`` (smallest initial displacement of
+            a strict failure, NaN if none), ``min_failed_displacement_ncc``,
+            ``max_success_displacement`` (largest of a strict success),
+            ``success_below_<limit>`` as "k/n", the median absolute PC and
+            tilt-difference errors of successful runs, and ``wall_time``.
+        """
+        return summarise(self.table, limits, self.wall_time, axis)
+
+    def to_dataframe(self):
+        """Return the table as a :class:`pandas.DataFrame` (needs pandas)."""
+        import pandas as pd
+
+        return pd.DataFrame.from_records(self.table)
+
+    def save(self, path) -> None:
+        """Write the table as CSV (read back with :func:`read_table`)."""
+        _write_csv(self.table, path)
+
+    def plot_success(self, **kwargs):
+        """Fig. 8A; see :func:`plot_success`."""
+        return plot_success(self.table, **kwargs)
+
+    def plot_heatmaps(self, **kwargs):
+        """Figs. 8C/D; see :func:`plot_heatmaps`."""
+        return plot_heatmaps(self.table, **kwargs)
+
+    def plot_errors(self, **kwargs):
+        """Fig. 9B; see :func:`plot_errors`."""
+        kwargs.setdefault("coupling", self.coupling)
+        return plot_errors(self.table, **kwargs)
+
+    def plot_normalised_errors(self, pair, **kwargs):
+        """Fig. 9A; see :func:`plot_normalised_errors`."""
+        return plot_normalised_errors(self.table, pair, **kwargs)
+
+
+def summarise(
+    table: np.ndarray,
+    limits=(0.02, 0.04, 0.06),
+    wall_time=float("nan"),
+    axis: str = "initial_displacement",
+) -> dict:
+    """Return the headline numbers of a study table (see
+    :meth:`PerturbationStudy.summary`); *axis* is the displacement column
+    the limits refer to ("initial_displacement" or the paper's
+    "initial_displacement_eq2")."""
+    t = table
+    d0 = t[axis]
+    out: dict[str, Any] = {
+        "runs": int(t.size),
+        "success_ncc": int(t["success_ncc"].sum()),
+        "success": int(t["success"].sum()),
+    }
+    fail = ~t["success"]
+    out["min_failed_displacement"] = float(d0[fail].min()) if fail.any() else float("nan")
+    fail_ncc = ~t["success_ncc"]
+    out["min_failed_displacement_ncc"] = (
+        float(d0[fail_ncc].min()) if fail_ncc.any() else float("nan")
+    )
+    out["max_success_displacement"] = (
+        float(d0[t["success"]].max()) if t["success"].any() else float("nan")
+    )
+    for lim in limits:
+        below = d0 < lim
+        out[f"success_below_{100 * lim:g}%"] = f"{int(t['success'][below].sum())}/{int(below.sum())}"
+    ok = t["success"]
+    if ok.any():
+        pc = np.abs(np.stack([t[f"err_{k}"][ok] for k in _PC]))
+        out["median_abs_pc_error"] = float(np.median(pc))
+        out["max_abs_pc_error"] = float(pc.max())
+        out["median_abs_tilt_difference_error"] = float(
+            np.median(np.abs(t["err_tilt_difference"][ok]))
+        )
+        out["median_abs_azimuthal_error"] = float(np.median(np.abs(t["err_azimuthal"][ok])))
+        out["median_misorientation"] = float(np.median(t["misorientation"][ok]))
+    out["mean_run_time"] = float(t["time"].mean()) if t.size else float("nan")
+    out["wall_time"] = float(wall_time)
+    return out
+
+
+def _run_spec(spec: dict) -> dict:
+    """One run of the study (module level so that Dask can pickle it)."""
+    import dask
+
+    t0 = time.perf_counter()
+    mp = spec["master_pattern"]
+    if isinstance(mp, str):
+        mp = synthetic.master_pattern(mp)
+    base: MapGeometry = spec["base_geometry"]
+    delta = {spec["param1"]: spec["delta1"]}
+    delta[spec["param2"]] = delta.get(spec["param2"], 0.0) + spec["delta2"]
+    truth = base.updated(delta)
+    row = {k: spec[k] for k in ("material", "param1", "param2", "level1", "level2", "delta1", "delta2")}
+    ctx = (
+        dask.config.set(scheduler=spec["inner_scheduler"])
+        if spec.get("inner_scheduler")
+        else contextlib.nullcontext()
+    )
+    with ctx, warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sm = synthetic.synthetic_map(
+            mp,
+            base.navigation_shape,
+            orientations=spec["orientations"],
+            geometry=truth,
+            perturbation={k: -v for k, v in delta.items()},
+            orientation_error=spec["orientation_error"],
+            scatter=spec["scatter"],
+            dose=spec["dose"],
+            blur=spec["blur"],
+            seed=spec["seed"],
+        )
+        pts = spec["points"]
+        row["initial_displacement"] = mean_displacement(sm.start_geometry, truth, pts)
+        idx0 = pts[:, 0] * base.navigation_shape[1] + pts[:, 1]
+        row["initial_displacement_eq2"] = eq2_displacement(
+            sm.master_pattern, sm.xmap.rotations[idx0], sm.start_geometry, truth, pts,
+            sm.energy, tuple(spec["refine_kwargs"].get("rois", (8, 8))),
+        )[0]
+        try:
+            res = refine_geometry_dic(
+                sm.signal,
+                sm.start_xmap,
+                sm.start_detector,
+                sm.master_pattern,
+                sm.energy,
+                parameters=spec["parameters"],
+                points=pts,
+                show_progressbar=False,
+                **spec["refine_kwargs"],
+            )
+        except Exception as exc:  # A failed run is a result, not a crash
+            row.update(error=repr(exc), success=False, success_ncc=False, time=time.perf_counter() - t0)
+            return row
+    nav = sm.geometry.navigation_shape
+    idx = res.points[:, 0] * nav[1] + res.points[:, 1]
+    mis = _misorientation(res.xmap.rotations, sm.xmap.rotations[idx])
+    err = _geometry_errors(res.geometry, truth)
+    scale = spec["scale"]
+    row.update(
+        initial_displacement_dic=res.history[0]["displacement_before"] if res.history else np.nan,
+        final_displacement=dsp_mean(res.field_after),
+        final_displacement_model=mean_displacement(res.geometry, truth, res.points),
+        initial_ncc=res.history[0]["ncc_before"] if res.history else np.nan,
+        final_ncc=float(np.mean(res.xmap.scores)),
+        misorientation=float(mis.mean()),
+        max_misorientation=float(mis.max()),
+        iterations=len(res.history),
+        converged=bool(res.converged),
+    )
+    for k, v in err.items():
+        row[f"err_{k}"] = v
+    for k in DEFAULT_PARAMETERS:
+        row[f"nerr_{k}"] = err[k] * scale[k]
+    row["max_pc_error"] = max(abs(err[k]) for k in _PC)
+    row["success_ncc"] = bool(row["final_ncc"] > spec["ncc_success"])
+    row["success"] = bool(
+        row["misorientation"] < spec["misorientation_success"]
+        and row["max_pc_error"] < spec["pc_success"]
+    )
+    row["time"] = time.perf_counter() - t0
+    if spec.get("verbose"):
+        print(
+            f"[{spec['material']}] {spec['param1']}={spec['delta1']:+g} "
+            f"{spec['param2']}={spec['delta2']:+g}: d0 {100 * row['initial_displacement']:.2f} %, "
+            f"NCC {row['final_ncc']:.4f}, mis {row['misorientation']:.3f} deg, "
+            f"PC err {row['max_pc_error']:.1e}, {'ok' if row['success'] else 'FAIL'} "
+            f"({row['time']:.1f} s)",
+            flush=True,
+        )
+    return row
+
+
+def dsp_mean(f: dsp.DisplacementField) -> float:
+    """Mean displacement magnitude of a measured field, fraction of width
+    (as the refinement reports it)."""
+    has = f.total_counts > 0
+    if not has.any():
+        return float("nan")
+    return float(np.linalg.norm(f.mean[has], axis=1).mean() / f.shape[1])
+
+
+def perturbation_study(
+    master_pattern: EBSDMasterPattern | str = "BaTiO3",
+    pairs: Sequence[tuple[str, str]] | None = None,
+    levels: Sequence[float] = PAPER_LEVELS,
+    deltas: Mapping[str, float] | None = None,
+    navigation_shape: tuple[int, int] = (10, 10),
+    shape: tuple[int, int] = (60, 60),
+    points: int | np.ndarray | None = None,
+    orientations: str = "random",
+    base_geometry: MapGeometry | None = None,
+    parameters: Sequence[str] = DEFAULT_PARAMETERS,
+    refine_kwargs: Mapping[str, Any] | None = None,
+    orientation_error: float = 0.0,
+    scatter: float = 0.05,
+    dose: float | None = None,
+    blur: float = 0.0,
+    ncc_success: float = NCC_SUCCESS,
+    misorientation_success: float = MISORIENTATION_SUCCESS,
+    pc_success: float = PC_SUCCESS,
+    n_workers: int = 1,
+    seed: int = 0,
+    verbose: bool = False,
+) -> PerturbationStudy:
+    """Run the paper's perturbation study (section 4.1) on synthetic data.
+
+    For each pair of parameters and each combination of *levels*, the
+    true geometry is the starting (base) geometry plus
+    ``(level1 d1, level2 d2)`` on the two parameters, a map is simulated
+    at the true geometry with the true orientations, and
+    :func:`~kikuchipy_geomdic.refine_geometry_dic` refines *parameters*
+    (all six by default, as in the paper) from the base geometry and the
+    true orientations. With the defaults, the 15 pairs x 25 combinations
+    are the paper's 375 runs.
+
+    Parameters
+    ----------
+    master_pattern
+        Master pattern or a name for
+        :func:`~kikuchipy_geomdic.synthetic.master_pattern` ("BaTiO3",
+        "Si").
+    pairs
+        Parameter pairs; default :data:`PAPER_PAIRS` (all 15). A pair of a
+        parameter with itself is allowed (a 1D scan).
+    levels
+        Perturbation levels as fractions of ``d``; default
+        :data:`PAPER_LEVELS` ``(-1, -0.5, 0, 0.5, 1)``.
+    deltas
+        ``d`` per parameter; default :data:`PAPER_DELTAS`.
+    navigation_shape
+        Map shape. The map spans the 500 um field of view of
+        :func:`~kikuchipy_geomdic.synthetic.default_geometry` whatever
+        its shape.
+    shape
+        Pattern shape (rows, columns).
+    points
+        Calibration points (number or (N, 2) array); default every map
+        point.
+    orientations
+        "random", "single" or "variants", see
+        :func:`~kikuchipy_geomdic.synthetic.synthetic_map`. The same
+        orientations (same *seed*) are used in every run.
+    base_geometry
+        Starting geometry; default
+        :func:`~kikuchipy_geomdic.synthetic.default_geometry`.
+    parameters
+        Parameters refined in every run.
+    refine_kwargs
+        Further arguments of
+        :func:`~kikuchipy_geomdic.refine_geometry_dic` (``max_iterations``,
+        ``rois``, ``dic_kwargs``, ``refine_kwargs``, ...).
+    orientation_error
+        RMS error in degrees of the starting orientations; 0 (the paper's
+        setting) starts from the true orientations.
+    scatter
+        Orientation scatter for "single" and "variants" maps.
+    dose, blur
+        Shot noise (mean counts per pixel) and blur of the "experimental"
+        patterns, see :func:`~kikuchipy_geomdic.synthetic.synthetic_map`.
+    ncc_success, misorientation_success, pc_success
+        Success thresholds, see the module notes: ``success_ncc`` is
+        ``final_ncc > ncc_success``; ``success`` is
+        ``misorientation < misorientation_success`` (deg) and
+        ``max_pc_error < pc_success``.
+    n_workers
+        Runs in parallel through ``dask.bag`` with the processes
+        scheduler when above 1 (each run then uses Dask's synchronous
+        scheduler inside); 1 runs them one after the other here.
+    seed
+        Seed of the orientations and noise (the same in every run).
+    verbose
+        Print one line per run.
+
+    Returns
+    -------
+    study
+        :class:`PerturbationStudy`.
+
+    Examples
+    --------
+    One pair, a 1 x 2 grid on a tiny map (a real study takes minutes to
+    hours):
+
+    >>> from kikuchipy_geomdic.validation import perturbation_study
+    >>> study = perturbation_study(
+    ...     "Si", pairs=[("pcx", "pcz")], levels=[0.0, 0.5],
+    ...     navigation_shape=(3, 3), shape=(40, 40),
+    ...     refine_kwargs=dict(max_iterations=3, rois=(4, 4)),
+    ... )  # doctest: +SKIP
+    >>> study.table["success"].tolist()  # doctest: +SKIP
+    [True, True]
+    """
+    t_start = time.perf_counter()
+    material = (
+        master_pattern
+        if isinstance(master_pattern, str)
+        else str(master_pattern.phase.name or "phase")
+    )
+    if isinstance(master_pattern, str):
+        synthetic.master_pattern(master_pattern)  # Fail early on a bad name
+    pairs = list(PAPER_PAIRS if pairs is None else pairs)
+    d = dict(PAPER_DELTAS)
+    d.update(deltas or {})
+    for p in pairs:
+        if len(p) != 2 or any(k not in d for k in p):
+            raise ValueError(f"Pair {p} is not two of {list(d)}")
+    nav = tuple(navigation_shape)
+    if base_geometry is None:
+        base_geometry = synthetic.default_geometry(nav, tuple(shape))
+    if points is None:
+        rows, cols = np.indices(nav)
+        pts = np.stack([rows.ravel(), cols.ravel()], axis=1)
+    elif np.ndim(points) == 0:
+        pts = calibration_points(nav, int(points))
+    else:
+        pts = np.asarray(points, dtype=int)
+    rkw = dict(refine_kwargs or {})
+    scale, coupling = sensitivities(
+        base_geometry, pts, DEFAULT_PARAMETERS, rkw.get("steps"), tuple(rkw.get("rois", (8, 8)))
+    )
+    parallel = n_workers > 1
+    specs = []
+    for p1, p2 in pairs:
+        for l1 in levels:
+            for l2 in levels:
+                specs.append(
+                    dict(
+                        material=material,
+                        master_pattern=master_pattern,
+                        param1=p1,
+                        param2=p2,
+                        level1=float(l1),
+                        level2=float(l2),
+                        delta1=float(l1) * d[p1],
+                        delta2=float(l2) * d[p2],
+                        base_geometry=base_geometry,
+                        orientations=orientations,
+                        orientation_error=orientation_error,
+                        scatter=scatter,
+                        dose=dose,
+                        blur=blur,
+                        seed=seed,
+                        points=pts,
+                        parameters=tuple(parameters),
+                        refine_kwargs=rkw,
+                        scale=scale,
+                        ncc_success=ncc_success,
+                        misorientation_success=misorientation_success,
+                        pc_success=pc_success,
+                        inner_scheduler="synchronous" if parallel else None,
+                        verbose=verbose,
+                    )
+                )
+    if parallel:
+        import dask.bag as db
+
+        bag = db.from_sequence(specs, npartitions=len(specs))
+        rows = bag.map(_run_spec).compute(scheduler="processes", num_workers=n_workers)
+    else:
+        rows = [_run_spec(s) for s in specs]
+    table = _to_table(rows, _STUDY_COLUMNS)
+    settings = dict(
+        material=material,
+        pairs=pairs,
+        levels=list(levels),
+        deltas=d,
+        navigation_shape=nav,
+        shape=tuple(shape),
+        n_points=len(pts),
+        orientations=orientations,
+        parameters=tuple(parameters),
+        refine_kwargs=rkw,
+        orientation_error=orientation_error,
+        dose=dose,
+        blur=blur,
+        n_workers=n_workers,
+        seed=seed,
+        errors=[r["error"] for r in rows if "error" in r],
+    )
+    return PerturbationStudy(
+        table=table,
+        scale=scale,
+        coupling=coupling,
+        settings=settings,
+        wall_time=time.perf_counter() - t_start,
+    )
+
+
+# --------------------------------------------------------------------- #
+# Figures of the study
+# --------------------------------------------------------------------- #
+
+
+def plot_success(
+    table: np.ndarray, limit: float = 0.04, ax=None, axis: str = "initial_displacement"
+):
+    """Plot final NCC and misorientation against the initial displacement
+    (the paper's Fig. 8A), strict successes and failures marked.
+
+    Parameters
+    ----------
+    table
+        Study table (:attr:`PerturbationStudy.table` or :func:`read_table`).
+    limit
+        Initial displacement (fraction of the width) drawn as a line: the
+        paper's 4 %.
+    ax
+        Two axes to draw on; default a new figure.
+    axis
+        Displacement column on the x axis ("initial_displacement" or
+        "initial_displacement_eq2", the paper's).
+
+    Returns
+    -------
+    figure
+    """
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        fig, ax = plt.subplots(1, 2, figsize=(9, 3.6), layout="constrained")
+    else:
+        fig = ax[0].figure
+    d0 = 100 * table[axis]
+    ok = table["success"]
+    for a, col, lab in (
+        (ax[0], "final_ncc", "mean NCC after refinement"),
+        (ax[1], "misorientation", "mean misorientation to truth (deg)"),
+    ):
+        a.scatter(d0[ok], table[col][ok], s=12, c="C0", label="success")
+        a.scatter(d0[~ok], table[col][~ok], s=14, c="C3", marker="x", label="failure")
+        a.axvline(100 * limit, color="0.5", ls="--", lw=1)
+        a.set_xlabel(
+            "initial mean displacement (% of width"
+            + (", Eq. 2 average)" if axis.endswith("eq2") else ", model)")
+        )
+        a.set_ylabel(lab)
+    ax[0].axhline(NCC_SUCCESS, color="0.7", ls=":", lw=1)
+    ax[1].set_yscale("log")
+    ax[1].axhline(MISORIENTATION_SUCCESS, color="0.7", ls=":", lw=1)
+    ax[0].legend(fontsize=8)
+    n = table.size
+    fig.suptitle(
+        f"{int(ok.sum())}/{n} strict successes, {int(table['success_ncc'].sum())}/{n} with NCC > "
+        f"{NCC_SUCCESS}",
+        fontsize=10,
+    )
+    return fig
+
+
+def _pairs_in(table):
+    seen = []
+    for p in zip(table["param1"], table["param2"]):
+        p = (str(p[0]), str(p[1]))
+        if p not in seen:
+            seen.append(p)
+    return seen
+
+
+def plot_heatmaps(
+    table: np.ndarray,
+    metric: str = "final_ncc",
+    pairs: Sequence[tuple[str, str]] | None = None,
+    material: str | None = None,
+    vmin: float | None = None,
+    vmax: float | None = None,
+    cmap: str | None = None,
+):
+    """Plot a metric over each pair's perturbation grid (Figs. 8C/D).
+
+    The panels sit in the lower triangle of a parameter x parameter grid,
+    like the sub-diagonal of the paper's coupling matrix (Fig. 8B). The
+    x axis of a panel is the first parameter's perturbation, the y axis
+    the second's; a cross marks strict failures.
+
+    Parameters
+    ----------
+    table
+        Study table.
+    metric
+        Column to show, e.g. "final_ncc", "misorientation",
+        "initial_displacement", "max_pc_error".
+    pairs
+        Pairs to show; default all in the table.
+    material
+        Show only rows of this material.
+    vmin, vmax, cmap
+        Colour scale; sensible defaults per metric.
+
+    Returns
+    -------
+    figure
+    """
+    import matplotlib.pyplot as plt
+
+    if material is not None:
+        table = table[table["material"] == material]
+    pairs = list(pairs or _pairs_in(table))
+    names = [n for n in DEFAULT_PARAMETERS if any(n in p for p in pairs)]
+    defaults = {
+        "final_ncc": (0.0, 1.0, "gray"),
+        "misorientation": (0.0, 1.0, "magma_r"),
+        "initial_displacement": (0.0, 0.1, "viridis"),
+        "max_pc_error": (0.0, 5e-3, "magma_r"),
+    }
+    dv = defaults.get(metric, (None, None, "viridis"))
+    vmin = dv[0] if vmin is None else vmin
+    vmax = dv[1] if vmax is None else vmax
+    cmap = cmap or dv[2]
+    k = len(names)
+    full = all((a, b) in pairs or (b, a) in pairs for a, b in itertools.combinations(names, 2))
+    if full and k > 2:
+        fig, axes = plt.subplots(k - 1, k - 1, figsize=(2.0 * (k - 1), 2.0 * (k - 1)),
+                                 layout="constrained", squeeze=False)
+        for a in axes.ravel():
+            a.set_visible(False)
+        where = {}
+        for p1, p2 in pairs:
+            i, j = sorted((names.index(p1), names.index(p2)))
+            where[(p1, p2)] = axes[j - 1, i]
+    else:
+        fig, axes = plt.subplots(1, len(pairs), figsize=(2.4 * len(pairs), 2.4),
+                                 layout="constrained", squeeze=False)
+        where = {p: axes[0, i] for i, p in enumerate(pairs)}
+    im = None
+    for (p1, p2), ax in where.items():
+        sel = table[(table["param1"] == p1) & (table["param2"] == p2)]
+        if sel.size == 0:
+            continue
+        ax.set_visible(True)
+        l1 = np.unique(sel["level1"])
+        l2 = np.unique(sel["level2"])
+        grid = np.full((l2.size, l1.size), np.nan)
+        fail = np.zeros_like(grid, dtype=bool)
+        for r in sel:
+            i = np.searchsorted(l1, r["level1"])
+            j = np.searchsorted(l2, r["level2"])
+            grid[j, i] = r[metric]
+            fail[j, i] = not r["success"]
+        d1 = sel["delta1"][sel["level1"] != 0]
+        d2 = sel["delta2"][sel["level2"] != 0]
+        s1 = (np.abs(d1).max() / np.abs(l1).max()) if d1.size else 1.0
+        s2 = (np.abs(d2).max() / np.abs(l2).max()) if d2.size else 1.0
+        im = ax.imshow(grid, origin="lower", vmin=vmin, vmax=vmax, cmap=cmap, aspect="auto")
+        jj, ii = np.nonzero(fail)
+        ax.scatter(ii, jj, marker="x", c="C3", s=20)
+        ax.set_xticks(range(l1.size), [f"{v * s1:g}" for v in l1], fontsize=6)
+        ax.set_yticks(range(l2.size), [f"{v * s2:g}" for v in l2], fontsize=6)
+        ax.set_xlabel(f"d {p1}", fontsize=7)
+        ax.set_ylabel(f"d {p2}", fontsize=7)
+    if im is not None:
+        fig.colorbar(im, ax=[a for a in where.values()], shrink=0.6, label=metric)
+    return fig
+
+
+def _status(table, coupling, threshold):
+    """Status per run and parameter: active, positive, negative, uncoupled."""
+    names = list(DEFAULT_PARAMETERS)
+    status = np.empty((table.size, len(names)), dtype="U10")
+    for r, row in enumerate(table):
+        active = [str(row["param1"]), str(row["param2"])]
+        active = [a for a, lev in zip(active, (row["level1"], row["level2"])) if lev != 0] or []
+        for k, n in enumerate(names):
+            if n in active:
+                status[r, k] = "active"
+                continue
+            c = [coupling[k, names.index(a)] for a in active]
+            cmax = max(c, key=abs) if c else 0.0
+            if cmax >= threshold:
+                status[r, k] = "positive"
+            elif cmax <= -threshold:
+                status[r, k] = "negative"
+            else:
+                status[r, k] = "uncoupled"
+    return status
+
+
+def plot_errors(
+    table: np.ndarray,
+    coupling: np.ndarray | None = None,
+    threshold: float = 0.3,
+    success: str = "success_ncc",
+    normalised: bool = False,
+):
+    """Box plots of absolute parameter errors by the parameter's status in
+    the run (the paper's Fig. 9B).
+
+    A parameter is "active" when it was perturbed in the run, "positive"
+    or "negative" when its coupling with an active parameter is above
+    *threshold* or below ``-threshold``, else "uncoupled".
+
+    Parameters
+    ----------
+    table
+        Study table.
+    coupling
+        Coupling matrix of the six parameters
+        (:attr:`PerturbationStudy.coupling`); default from
+        :func:`sensitivities` at the default geometry.
+    threshold
+        Coupling threshold.
+    success
+        Only runs with this column true are included ("success_ncc" as
+        in the paper, or "success").
+    normalised
+        Plot the normalised errors of Eq. 12 instead.
+
+    Returns
+    -------
+    figure
+    """
+    import matplotlib.pyplot as plt
+
+    if coupling is None:
+        coupling = sensitivities(synthetic.default_geometry((5, 5), (60, 60)))[1]
+    sel = table[table[success]] if success else table
+    status = _status(sel, coupling, threshold)
+    groups = ("active", "positive", "negative", "uncoupled")
+    names = list(DEFAULT_PARAMETERS)
+    fig, axes = plt.subplots(1, len(names), figsize=(2.1 * len(names), 3.2), layout="constrained")
+    for k, (n, ax) in enumerate(zip(names, axes)):
+        col = f"nerr_{n}" if normalised else f"err_{n}"
+        data = [np.abs(sel[col][status[:, k] == g]) for g in groups]
+        ax.boxplot(
+            [d if d.size else [np.nan] for d in data],
+            tick_labels=[g[:3] for g in groups],
+            showfliers=True,
+            flierprops=dict(markersize=2),
+        )
+        ax.set_yscale("log")
+        ax.set_title(n, fontsize=9)
+        ax.tick_params(labelsize=7)
+    axes[0].set_ylabel("|normalised error|" if normalised else "|error| (PC fraction / deg)")
+    fig.suptitle(f"{sel.size} runs with {success}", fontsize=9)
+    return fig
+
+
+def plot_normalised_errors(table: np.ndarray, pair: tuple[str, str], material: str | None = None):
+    """Stacked normalised errors (Eq. 12) of one pair's runs, the final NCC
+    below (the paper's Fig. 9A, flattened to 2D).
+
+    Parameters
+    ----------
+    table
+        Study table.
+    pair
+        The pair (param1, param2).
+    material
+        Only rows of this material.
+
+    Returns
+    -------
+    figure
+    """
+    import matplotlib.pyplot as plt
+
+    if material is not None:
+        table = table[table["material"] == material]
+    sel = table[(table["param1"] == pair[0]) & (table["param2"] == pair[1])]
+    fig, (ax, ax2) = plt.subplots(
+        2, 1, figsize=(8, 4), sharex=True, layout="constrained", height_ratios=(3, 1)
+    )
+    x = np.arange(sel.size)
+    bottom = np.zeros(sel.size)
+    for k, n in enumerate(DEFAULT_PARAMETERS):
+        v = np.abs(sel[f"nerr_{n}"])
+        ax.bar(x, v, bottom=bottom, label=n, color=f"C{k}")
+        bottom += v
+    ax.set_yscale("symlog", linthresh=1e-4)
+    ax.set_ylabel("|normalised error|")
+    ax.legend(fontsize=7, ncol=3)
+    ax2.bar(x, sel["final_ncc"], color=np.where(sel["success"], "C0", "C3"))
+    ax2.set_ylabel("NCC")
+    ax2.set_xticks(
+        x, [f"{a:+g}\n{b:+g}" for a, b in zip(sel["delta1"], sel["delta2"])], fontsize=5
+    )
+    ax2.set_xlabel(f"d {pair[0]} / d {pair[1]}")
+    return fig
+
+
+# --------------------------------------------------------------------- #
+# Method comparison
+# --------------------------------------------------------------------- #
+
+
+def _pattern_wise(
+    experimental, start_rot, phase, start_geo, points, master_pattern, energy, method,
+    method_kwargs, trust_region,
+):
+    n = len(points)
+    signal = EBSD(experimental)
+    signal.axes_manager.navigation_axes[0].name = "x"
+    xmap = CrystalMap(rotations=start_rot, x=np.arange(n, dtype=float), phase_list=PhaseList(phase))
+    det = start_geo.detector(points)
+    with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        xmap_r, det_r = signal.refine_orientation_projection_center(
+            xmap, det, master_pattern, energy, method=method,
+            method_kwargs=dict(method_kwargs or {}), trust_region=trust_region,
+        )
+    return xmap_r, det_r
+
+
+def _refine_orientations(experimental, rot, phase, geo, points, master_pattern, energy):
+    n = len(points)
+    signal = EBSD(experimental)
+    signal.axes_manager.navigation_axes[0].name = "x"
+    xmap = CrystalMap(rotations=rot, x=np.arange(n, dtype=float), phase_list=PhaseList(phase))
+    with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return signal.refine_orientation(xmap, geo.detector(points), master_pattern, energy)
+
+
+def compare_methods(
+    sm: "synthetic.SyntheticMap",
+    points: int | np.ndarray = 100,
+    methods: Sequence[str] = ("dic", "nelder-mead", "differential-evolution"),
+    method_points: Mapping[str, int] | None = None,
+    refine_kwargs: Mapping[str, Any] | None = None,
+    dic_configs: Mapping[str, Mapping[str, Any]] | None = None,
+    trust_region: Sequence[float] = (3, 3, 3, 0.05, 0.05, 0.05),
+    de_kwargs: Mapping[str, Any] | None = None,
+    scheduler: str | None = "synchronous",
+    verbose: bool = False,
+) -> list[dict[str, Any]]:
+    """Compare DIC geometry refinement with pattern-wise PC refinement.
+
+    On the same synthetic map, start geometry and start orientations:
+
+    - "dic": :func:`~kikuchipy_geomdic.refine_geometry_dic` (all six
+      parameters unless *refine_kwargs* says otherwise);
+    - "nelder-mead" and "differential-evolution": kikuchipy's
+      :meth:`~kikuchipy.signals.EBSD.refine_orientation_projection_center`
+      per pattern (SciPy Nelder-Mead, or differential evolution), with
+      the paper's trust region (3 deg, 5 % of the detector); the PCs are
+      then averaged over the points (the PC at the mean point position,
+      angles unchanged: these methods cannot refine them), as in the
+      paper's section 3.1, and the orientations are refined once more at
+      that averaged geometry ("re-refined" columns).
+
+    Parameters
+    ----------
+    sm
+        Synthetic map with truth and start
+        (:func:`~kikuchipy_geomdic.synthetic.synthetic_map`).
+    points
+        Number of calibration points (spread evenly) or an (N, 2) array.
+    methods
+        Any of "dic", "nelder-mead", "differential-evolution".
+    method_points
+        Fewer points for a slow method, e.g. ``{"differential-evolution":
+        20}``: the first points of an even spread of that many; its
+        ``time_per_point`` and the extrapolated ``time_at_n`` (time per
+        point times the number of points of the others) are reported.
+    refine_kwargs
+        Further arguments of
+        :func:`~kikuchipy_geomdic.refine_geometry_dic` for "dic".
+    dic_configs
+        More DIC variants to time, ``{name: refine_kwargs}``; a name
+        listed in *methods* runs
+        :func:`~kikuchipy_geomdic.refine_geometry_dic` with those
+        arguments (e.g. ``{"dic-fast": {"max_iterations": 3}}``).
+    trust_region
+        kikuchipy trust region (3 Euler angles in deg, 3 PC fractions).
+    de_kwargs
+        ``method_kwargs`` of differential evolution (SciPy); default
+        ``{"seed": 0}``.
+    scheduler
+        Dask scheduler for every method while timed; "synchronous" (the
+        default) times all methods on one CPU, as the paper did.
+    verbose
+        Print one line per method.
+
+    Returns
+    -------
+    rows
+        One dict per method: ``method``, ``n_points``, ``time`` (s, wall),
+        ``time_per_point``, ``time_at_n`` (extrapolated to the largest
+        number of points when fewer were used, else equal to ``time``),
+        ``extrapolated``, ``err_pcx`` ... ``err_sample_tilt``,
+        ``err_tilt_difference``, ``max_pc_error`` (at the map centre),
+        ``pc_scatter`` (RMS of the pattern-wise PCs about their plane, 0
+        for DIC), ``misorientation`` (mean, deg, of the method's own
+        orientations to the truth), ``misorientation_rerefined`` and
+        ``time_rerefine`` (after re-refining the orientations at the
+        averaged geometry; DIC's orientations are already refined at its
+        geometry), ``disorientation`` (mean angle to the map-mean
+        orientation, the paper's Si metric; meaningful for a single
+        crystal), ``ncc`` (mean).
+
+    Examples
+    --------
+    >>> from kikuchipy_geomdic import synthetic
+    >>> from kikuchipy_geomdic.validation import compare_methods
+    >>> sm = synthetic.synthetic_map("Si", (4, 4), shape=(60, 60), seed=0)
+    >>> rows = compare_methods(sm, 16, methods=["dic", "nelder-mead"])  # doctest: +SKIP
+    >>> [r["method"] for r in rows]  # doctest: +SKIP
+    ['dic', 'nelder-mead']
+    """
+    import dask
+
+    nav = sm.geometry.navigation_shape
+    if np.ndim(points) == 0:
+        pts_all = calibration_points(nav, int(points))
+    else:
+        pts_all = np.asarray(points, dtype=int)
+    truth = sm.geometry
+    start = sm.start_geometry
+    phase = sm.start_xmap.phases[sm.start_xmap.phases.ids[-1]].deepcopy()
+    data = sm.signal.data
+    if hasattr(data, "compute"):
+        data = data.compute()
+    data = np.asarray(data).reshape((nav[0] * nav[1],) + tuple(truth.shape))
+    start_rot_all = sm.start_xmap.rotations
+    true_rot_all = sm.xmap.rotations
+    method_points = dict(method_points or {})
+    configs = {"dic": dict(refine_kwargs or {})}
+    configs.update({k: dict(v) for k, v in (dic_configs or {}).items()})
+    rows = []
+    ctx = dask.config.set(scheduler=scheduler) if scheduler else contextlib.nullcontext()
+    with ctx:
+        for method in methods:
+            n_m = method_points.get(method)
+            pts = pts_all if n_m is None else calibration_points(nav, int(n_m))
+            flat = pts[:, 0] * nav[1] + pts[:, 1]
+            exp = data[flat].astype(np.float32)
+            t0 = time.perf_counter()
+            row: dict[str, Any] = {"method": method, "n_points": len(pts)}
+            if method in configs:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    res = refine_geometry_dic(
+                        sm.signal, sm.start_xmap, sm.start_detector, sm.master_pattern,
+                        sm.energy, points=pts, show_progressbar=False, **configs[method],
+                    )
+                row["time"] = time.perf_counter() - t0
+                geo = res.geometry
+                rot = res.xmap.rotations
+                ncc = float(np.mean(res.xmap.scores))
+                row["pc_scatter"] = 0.0
+                row["misorientation_rerefined"] = float(
+                    _misorientation(rot, true_rot_all[flat]).mean()
+                )
+                row["time_rerefine"] = 0.0
+                row["iterations"] = len(res.history)
+            elif method in ("nelder-mead", "differential-evolution"):
+                if method == "nelder-mead":
+                    m, mkw = "minimize", {"method": "Nelder-Mead"}
+                else:
+                    m, mkw = "differential_evolution", dict(de_kwargs or {"seed": 0})
+                xmap_r, det_r = _pattern_wise(
+                    exp, start_rot_all[flat], phase, start, pts, sm.master_pattern,
+                    sm.energy, m, mkw, list(trust_region),
+                )
+                row["time"] = time.perf_counter() - t0
+                pcs = det_r.pc.reshape(-1, 3)
+                rot = xmap_r.rotations
+                ncc = float(np.mean(xmap_r.scores))
+                # PC averaged over the points: the PC at their mean position
+                geo = MapGeometry(
+                    pc=pcs.mean(axis=0),
+                    shape=start.shape,
+                    px_size=start.px_size,
+                    binning=start.binning,
+                    step_sizes=start.step_sizes,
+                    navigation_shape=nav,
+                    tilt=start.tilt,
+                    azimuthal=start.azimuthal,
+                    sample_tilt=start.sample_tilt,
+                    twist=start.twist,
+                    reference=tuple(pts.mean(axis=0)),
+                )
+                # Scatter of pattern-wise PCs about the (true-angle) PC plane
+                plane = truth.pc_at(pts) - truth.pc_at(pts).mean(axis=0)
+                resid = pcs - pcs.mean(axis=0) - plane
+                row["pc_scatter"] = float(np.sqrt((resid**2).sum(axis=1).mean()))
+                t1 = time.perf_counter()
+                ref = _refine_orientations(
+                    exp, rot, phase, geo, pts, sm.master_pattern, sm.energy
+                )
+                row["time_rerefine"] = time.perf_counter() - t1
+                row["misorientation_rerefined"] = float(
+                    _misorientation(ref.rotations, true_rot_all[flat]).mean()
+                )
+                row["iterations"] = 1
+            else:
+                raise ValueError(
+                    f"Unknown method {method!r}: use 'nelder-mead', "
+                    f"'differential-evolution' or one of {list(configs)}"
+                )
+            err = _geometry_errors(geo, truth)
+            row.update({f"err_{k}": v for k, v in err.items()})
+            row["max_pc_error"] = max(abs(err[k]) for k in _PC)
+            row["misorientation"] = float(_misorientation(rot, true_rot_all[flat]).mean())
+            row["disorientation"] = _disorientation_from_mean(rot)
+            row["ncc"] = ncc
+            row["time_per_point"] = row["time"] / len(pts)
+            if verbose:
+                print(
+                    f"{method}: {row['time']:.1f} s for {len(pts)} points, PC error "
+                    f"{row['max_pc_error']:.1e}, misorientation {row['misorientation']:.3f} deg",
+                    flush=True,
+                )
+            rows.append(row)
+    n_max = max(r["n_points"] for r in rows)
+    for r in rows:
+        r["extrapolated"] = r["n_points"] < n_max
+        r["time_at_n"] = r["time_per_point"] * n_max if r["extrapolated"] else r["time"]
+    return rows
