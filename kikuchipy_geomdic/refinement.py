@@ -59,6 +59,7 @@ from kikuchipy_geomdic.geometry import (
     copy_detector,
 )
 from kikuchipy_geomdic.jacobian import analytic_jacobian, finite_difference_jacobian
+from kikuchipy_geomdic.reindex import usable_points
 from kikuchipy_geomdic.simulation import check_master_pattern, simulate_patterns
 from kikuchipy_geomdic.solve import coupling_matrix, solve_update
 
@@ -265,7 +266,7 @@ def _navigation_shape(signal: EBSD) -> tuple[int, int]:
     return tuple(nav)
 
 
-def _step_sizes(signal: EBSD, xmap: CrystalMap) -> tuple[float, float]:
+def _step_sizes(signal: EBSD) -> tuple[float, float]:
     axes = signal.axes_manager.navigation_axes
     if len(axes) == 2:
         dx, dy = axes[0].scale, axes[1].scale
@@ -323,18 +324,6 @@ def _check_inputs(signal, xmap, detector, master_pattern, phase, nav):
             f"phase's {x_pg.name} in xmap"
         )
     return phase_id
-
-
-def _usable(xmap, phase_id, nav) -> np.ndarray:
-    ok = np.zeros(nav[0] * nav[1], dtype=bool)
-    ok[xmap.id] = True
-    phase_ids = np.full(nav[0] * nav[1], -1)
-    phase_ids[xmap.id] = xmap.phase_id
-    rot = np.zeros((nav[0] * nav[1], 4))
-    rot[xmap.id] = xmap.rotations.data
-    ok &= phase_ids == phase_id
-    ok &= np.isfinite(rot).all(axis=1) & (np.linalg.norm(rot, axis=1) > 0.5)
-    return ok.reshape(nav)
 
 
 # --------------------------------------------------------------------- #
@@ -574,7 +563,7 @@ def refine_geometry_dic(
     if any(step_all[n] <= 0 for n in names):
         raise ValueError("Finite-difference steps must be positive")
 
-    usable = _usable(xmap, phase_id, nav)
+    usable = usable_points(xmap, phase_id).reshape(nav)
     if np.ndim(points) == 0:
         pts = calibration_points(nav, int(points), usable)
     else:
@@ -603,7 +592,7 @@ def refine_geometry_dic(
         )
 
     exp = _experimental(signal, pts, nav)
-    geometry0 = MapGeometry.from_detector(detector, _step_sizes(signal, xmap), nav)
+    geometry0 = MapGeometry.from_detector(detector, _step_sizes(signal), nav)
     flat = pts[:, 0] * nav[1] + pts[:, 1]
     lookup = np.full(nav[0] * nav[1], -1)
     lookup[xmap.id] = np.arange(xmap.size)

@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 from kikuchipy.signals import EBSD, EBSDMasterPattern
-from orix.crystal_map import CrystalMap, Phase, PhaseList
+from orix.crystal_map import CrystalMap, Phase
 
 import kikuchipy_geomdic as kg
 from kikuchipy_geomdic import synthetic
