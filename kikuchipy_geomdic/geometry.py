@@ -271,6 +271,7 @@ def forward_map(
     pc_b: np.ndarray,
     angles_b: Sequence[float],
     shape: tuple[int, int],
+    rotation: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Return where a pixel seen with geometry A lands with geometry B.
 
@@ -278,6 +279,10 @@ def forward_map(
     sample-frame direction; the same direction (same crystal orientation)
     lands at ``(x_b, y_b)`` under geometry B. ``(x_b - x, y_b - y)`` is the
     displacement a geometry change causes, predicted without simulating.
+    With *rotation*, the crystal is also rotated: its orientation ``g``
+    becomes ``g * T`` (orix's right factor, a sample-frame rotation), and
+    the feature follows its crystal direction, which now points along
+    ``T^-1`` times the old sample direction.
 
     Parameters
     ----------
@@ -290,6 +295,10 @@ def forward_map(
         ``(tilt, azimuthal, sample_tilt, twist)`` in degrees.
     shape
         Detector shape (rows, columns).
+    rotation
+        Rotation matrix ``T`` (3, 3) of the crystal change, or matrices
+        broadcasting against *x* with two trailing axes of 3 (e.g.
+        ``(n, 1, 3, 3)``, one per pattern). Default: no change.
 
     Returns
     -------
@@ -325,7 +334,13 @@ def forward_map(
     )
     m_a = sample_to_detector_matrix(*angles_a)
     m_b = sample_to_detector_matrix(*angles_b)
-    v_b = v_a @ (m_b @ m_a.T).T
+    if rotation is None:
+        v_b = v_a @ (m_b @ m_a.T).T
+    else:
+        # Row vectors: sample direction s = M_a^T v_a, then T^-1 s, then M_b
+        s_a = v_a @ m_a
+        v_b = np.einsum("...i,...ij->...j", s_a, np.asarray(rotation, dtype=np.float64))
+        v_b = v_b @ m_b.T
     with np.errstate(divide="ignore", invalid="ignore"):
         t = pc_b[..., 2] * nrows / v_b[..., 2]
         t = np.where(t > 0, t, np.nan)
@@ -622,7 +637,12 @@ class MapGeometry:
         )
 
     def displacement(
-        self, other: "MapGeometry", points: np.ndarray, x: np.ndarray, y: np.ndarray
+        self,
+        other: "MapGeometry",
+        points: np.ndarray,
+        x: np.ndarray,
+        y: np.ndarray,
+        rotations: np.ndarray | None = None,
     ) -> np.ndarray:
         """Return the forward displacement from this geometry to *other*.
 
@@ -635,6 +655,9 @@ class MapGeometry:
         x, y
             Pixel coordinates (m,), the same for every point, or (n, m),
             per point.
+        rotations
+            Per-point crystal rotation matrices (n, 3, 3), see *rotation*
+            of :func:`forward_map`; default none.
 
         Returns
         -------
@@ -645,5 +668,6 @@ class MapGeometry:
         pb = other.pc_at(points)[:, None, :]
         x = np.atleast_2d(np.asarray(x, dtype=float))
         y = np.atleast_2d(np.asarray(y, dtype=float))
-        xb, yb = forward_map(x, y, pa, self.angles, pb, other.angles, self.shape)
+        rot = None if rotations is None else np.asarray(rotations)[:, None]
+        xb, yb = forward_map(x, y, pa, self.angles, pb, other.angles, self.shape, rot)
         return np.stack([xb - x, yb - y], axis=-1)

@@ -12,6 +12,11 @@ per parameter unit):
   positions and averaged as Eq. 2 averages (zero where an ROI had no
   vectors, divided by N). No simulation.
 
+The joint solve (:func:`~kikuchipy_geomdic.solve.solve_joint`) needs the
+same derivatives per pattern instead of averaged, and also with respect
+to a small rotation of each pattern's crystal: :func:`pattern_jacobian`
+returns both, from the same forward map.
+
 Columns of parameters in :data:`~kikuchipy_geomdic.geometry.EQUIVALENT_PARAMETERS`
 are derived from their equivalent, never measured twice: the
 ``sample_tilt`` column is exactly ``-1`` times the ``tilt`` column.
@@ -25,17 +30,21 @@ import numpy as np
 
 from kikuchipy_geomdic.geometry import EQUIVALENT_PARAMETERS, MapGeometry
 
-__all__ = ["finite_difference_jacobian", "analytic_jacobian"]
+__all__ = ["finite_difference_jacobian", "analytic_jacobian", "pattern_jacobian"]
+
+#: Rotation step (radians) of the central difference of the rotation
+#: columns: the forward map is exact, so only round-off limits it.
+ROTATION_STEP = 1e-4
 
 
-def _assemble(names, steps, column) -> np.ndarray:
+def _assemble(names, steps, column, axis=1) -> np.ndarray:
     columns = {}
     for name in names:
         base, factor = EQUIVALENT_PARAMETERS.get(name, (name, 1.0))
         if base not in columns:
             columns[base] = column(base, steps.get(base, steps.get(name)))
         columns[name] = factor * columns[base]
-    return np.stack([columns[n] for n in names], axis=1)
+    return np.stack([columns[n] for n in names], axis=axis)
 
 
 def finite_difference_jacobian(
@@ -84,15 +93,22 @@ def finite_difference_jacobian(
     return _assemble(names, steps, column)
 
 
-def analytic_jacobian(
+def pattern_jacobian(
     geometry: MapGeometry,
     points: np.ndarray,
     positions: np.ndarray,
-    counts: np.ndarray,
     names: Sequence[str],
     steps: Mapping[str, float],
-) -> np.ndarray:
-    """Return the Jacobian from the forward displacement map.
+    rotations: bool = True,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Return per-pattern Jacobians of the ROI displacements.
+
+    For pattern ``i`` and ROI ``r``, the measured displacement
+    ``u[i, r]`` (simulated to experimental) is modelled after a geometry
+    change ``dp`` and a crystal rotation ``dw_i`` as
+    ``u + J_geo dp + J_rot dw_i``; both Jacobians are minus the forward
+    displacement of the simulated pattern, evaluated where each ROI's
+    displacement was measured.
 
     Parameters
     ----------
@@ -104,6 +120,84 @@ def analytic_jacobian(
         Feature positions (N, R, 2) ``(x, y)`` where each ROI's
         displacement was measured
         (:attr:`~kikuchipy_geomdic.displacement.DisplacementField.positions`).
+    names
+        Geometry parameters, one column each.
+    steps
+        ``{name: delta}`` of the central difference of the forward map.
+    rotations
+        Also return the rotation Jacobian.
+
+    Returns
+    -------
+    j_geo
+        (N, R, 2, K), pixels per parameter unit.
+    j_rot
+        (N, R, 2, 3), pixels per radian of a rotation ``g -> g * T`` of
+        each crystal about the sample axes X, Y and Z (orix's right
+        factor, see :func:`~kikuchipy_geomdic.geometry.forward_map`), or
+        None.
+
+    Examples
+    --------
+    A rotation of the crystal about the detector normal turns the pattern
+    about the PC:
+
+    >>> import numpy as np
+    >>> from kikuchipy_geomdic.geometry import MapGeometry
+    >>> from kikuchipy_geomdic.jacobian import pattern_jacobian
+    >>> geo = MapGeometry((0.5, 0.5, 0.6), (60, 60), 70, 8, (10, 10), (1, 1))
+    >>> pos = np.array([[[29.5, 9.5]]])  # 20 px above the PC
+    >>> jg, jr = pattern_jacobian(geo, [[0, 0]], pos, ["pcx"], {"pcx": 0.01})
+    >>> jg[0, 0, :, 0].round(6).tolist()  # pcx moves the pattern along x
+    [-60.0, 0.0]
+    >>> jr.shape
+    (1, 1, 2, 3)
+    """
+    x, y = positions[..., 0], positions[..., 1]
+    n = positions.shape[0]
+
+    def column(name, step):
+        d_plus = geometry.displacement(geometry.updated({name: step}), points, x, y)
+        d_minus = geometry.displacement(geometry.updated({name: -step}), points, x, y)
+        return -np.nan_to_num((d_plus - d_minus) / (2 * step))
+
+    j_geo = _assemble(names, steps, column, axis=-1)
+    if not rotations:
+        return j_geo, None
+    h = ROTATION_STEP
+    cols = []
+    for k in range(3):
+        mats = [
+            np.broadcast_to(_axis_rotation(k, s * h), (n, 3, 3)) for s in (1, -1)
+        ]
+        d_plus = geometry.displacement(geometry, points, x, y, mats[0])
+        d_minus = geometry.displacement(geometry, points, x, y, mats[1])
+        cols.append(-np.nan_to_num((d_plus - d_minus) / (2 * h)))
+    return j_geo, np.stack(cols, axis=-1)
+
+
+def analytic_jacobian(
+    geometry: MapGeometry,
+    points: np.ndarray,
+    positions: np.ndarray,
+    counts: np.ndarray,
+    names: Sequence[str],
+    steps: Mapping[str, float],
+) -> np.ndarray:
+    """Return the Jacobian of the average field from the forward map.
+
+    The per-pattern Jacobians of :func:`pattern_jacobian` averaged as
+    Eq. 2 averages the displacements: zero where an ROI had no vectors,
+    divided by N.
+
+    Parameters
+    ----------
+    geometry
+        Current geometry.
+    points
+        Map positions (N, 2) of the patterns.
+    positions
+        Feature positions (N, R, 2) ``(x, y)``.
     counts
         Vectors per pattern and ROI (N, R); ROIs with none contribute
         zero, as in Eq. 2.
@@ -118,14 +212,13 @@ def analytic_jacobian(
     jacobian
         (2R, K).
     """
-    x, y = positions[..., 0], positions[..., 1]
-    has = (np.asarray(counts) > 0)[..., None]
-    n = positions.shape[0]
+    j_geo, _ = pattern_jacobian(geometry, points, positions, names, steps, rotations=False)
+    has = (np.asarray(counts) > 0)[..., None, None]
+    j = np.where(has, j_geo, 0.0).sum(axis=0) / positions.shape[0]
+    return j.reshape(-1, j.shape[-1])
 
-    def column(name, step):
-        d_plus = geometry.displacement(geometry.updated({name: step}), points, x, y)
-        d_minus = geometry.displacement(geometry.updated({name: -step}), points, x, y)
-        d = np.where(has, np.nan_to_num((d_plus - d_minus) / (2 * step)), 0.0)
-        return -(d.sum(axis=0) / n).ravel()
 
-    return _assemble(names, steps, column)
+def _axis_rotation(axis: int, angle: float) -> np.ndarray:
+    from orix.quaternion import Rotation
+
+    return Rotation.from_axes_angles(np.eye(3)[axis], angle).to_matrix().reshape(3, 3)

@@ -1,39 +1,52 @@
-"""The refinement loop: global geometry from averaged displacement fields.
+"""The refinement loop: global geometry from displacement fields.
 
-This is the paper's algorithm (sections 2.2-2.4, Fig. 4): simulate the
-calibration points at the current geometry, measure the average
-displacement field ``b`` (:mod:`~kikuchipy_geomdic.displacement`), build
-the Jacobian, solve the weighted, column-normalised, damped least squares
-(:mod:`~kikuchipy_geomdic.solve`), update the geometry and its PC field
-(:mod:`~kikuchipy_geomdic.geometry`), refine the orientations with
-kikuchipy, and accept or reject the step.
+Both solvers follow the paper's method (sections 2.2-2.4, Fig. 4):
+simulate the calibration points at the current geometry, measure the
+displacement fields (:mod:`~kikuchipy_geomdic.displacement`), linearise
+(:mod:`~kikuchipy_geomdic.jacobian`), solve (:mod:`~kikuchipy_geomdic.solve`)
+and update the geometry and its PC field (:mod:`~kikuchipy_geomdic.geometry`).
 
-Where it departs from the paper, and why
-----------------------------------------
-- *Anchored orientations.* A rotation common to all orientations (right
-  factor, sample frame) is exactly a change of the detector angles in
-  kikuchipy's projection. Orientation refinement at a wrong geometry
-  therefore absorbs the angle error into the orientations, and the next
-  displacement field no longer shows it. The orientations used to
-  simulate are the refined ones with their mean rotation relative to the
-  starting orientations removed: each may move, their mean may not. The
-  angles are thus measured against the starting orientations, assumed
-  free of a common bias (true of the paper's perturbation study, and of
-  any start whose errors are random).
-- *Acceptance.* NCC after orientation refinement barely tells a right
-  geometry from one whose error was absorbed (field notes), so a step is
-  accepted when the mean displacement magnitude falls (measured first,
-  cheaply, with the current orientations) and then the NCC after
-  orientation refinement does not drop by more than ``ncc_tolerance``;
-  the loop ends when the NCC gain is below ``ncc_tolerance`` *and* the
-  displacement no longer falls by 10 %. A rejected step is retried with
-  ten times the damping, twice, before the loop ends; steps rejected on
-  their displacement cost no orientation refinement.
+The joint solver (default)
+--------------------------
+The unknowns are the geometry *and* one small rotation per calibration
+pattern. Each pattern's own ROI field is modelled as
+``J_geo,i dp + J_rot,i dw_i``; the rotations are eliminated exactly and
+the orientations updated from the same fields, so no kikuchipy refinement
+runs inside the loop. A step is accepted when the RMS of the per-pattern
+displacements falls (else the damping grows tenfold, up to
+:data:`MAX_TRIALS` times); the loop converges when every parameter's step
+is below its standard error.
+
+- *Gauge.* A rotation common to all orientations equals a change of the
+  detector angles for every pattern. Without an ``orientation_prior``
+  only the PC field across the map separates the two; with one, the
+  starting orientations' mean pins it. Parameters the map cannot
+  determine (standard error above :data:`DETERMINACY_LIMITS`) keep their
+  start value rather than follow the noise.
+- *Weights.* An ROI mean of ``c`` vectors weighs ``c`` times a vector, and
+  each pattern has its own vector variance, estimated from its residuals
+  (never below the median pattern's), so that a poor pattern (a grain
+  boundary, a wrong variant) weighs little.
+- *Degeneracy.* The ``sample_tilt`` column is ``-1`` times the ``tilt``
+  column, exactly: with both refined, the solve has one column for their
+  difference and splits its change equally.
+
+The paper's solver
+------------------
+``solver="paper"``: the average field, Eqs. 8-11, kikuchipy's orientation
+refinement inside the loop and NCC acceptance, with these departures:
+
+- *Anchored orientations.* Orientation refinement at a wrong geometry
+  absorbs the angle error into the orientations, so the orientations used
+  to simulate are the refined ones with their mean rotation relative to
+  the start removed: the angles are measured against the starting
+  orientations, assumed free of a common error.
+- *Acceptance.* A step is accepted when the mean displacement magnitude
+  falls and the NCC after orientation refinement does not drop by more
+  than ``ncc_tolerance``; the loop ends when the NCC gain is below
+  ``ncc_tolerance`` and the displacement no longer falls by 10 %.
 - *Jacobian.* ``"analytic"`` evaluates the forward displacement map at the
   measured feature positions instead of simulating at ``p +- delta``.
-- *Degeneracy.* The ``sample_tilt`` column is ``-1`` times the ``tilt``
-  column, exactly, and is not simulated; the solve handles the resulting
-  null direction by a minimum-norm split (:mod:`~kikuchipy_geomdic.solve`).
 """
 
 from __future__ import annotations
@@ -58,12 +71,22 @@ from kikuchipy_geomdic.geometry import (
     check_parameters,
     copy_detector,
 )
-from kikuchipy_geomdic.jacobian import analytic_jacobian, finite_difference_jacobian
+from kikuchipy_geomdic.jacobian import (
+    analytic_jacobian,
+    finite_difference_jacobian,
+    pattern_jacobian,
+)
 from kikuchipy_geomdic.reindex import usable_points
 from kikuchipy_geomdic.simulation import check_master_pattern, simulate_patterns
-from kikuchipy_geomdic.solve import coupling_matrix, solve_update
+from kikuchipy_geomdic.solve import JointUpdate, coupling_matrix, solve_joint, solve_update
 
-__all__ = ["GeometryRefinementResult", "refine_geometry_dic", "calibration_points"]
+__all__ = [
+    "GeometryRefinementResult",
+    "refine_geometry_dic",
+    "calibration_points",
+    "SOLVERS",
+    "DETERMINACY_LIMITS",
+]
 
 _JACOBIANS = ("finite-difference", "analytic")
 
@@ -91,31 +114,47 @@ class GeometryRefinementResult:
         :class:`~orix.crystal_map.CrystalMap` of the calibration points
         (1D, in the order of *points*) with orientations refined at the
         refined geometry and properties ``scores`` (NCC), ``row``, ``col``
-        and ``pseudo_symmetry_index``: which of
-        ``refine_kwargs["pseudo_symmetry_ops"]`` (1-based; 0 for none)
-        relates the input orientation to the refined one.
+        ``pseudo_symmetry_index`` (which of the pseudo-symmetry operators,
+        1-based, 0 for none, relates the input orientation to the refined
+        one) and ``dic_rms``: the RMS displacement in pixels left in each
+        pattern's field at the refined state (one far above the rest marks
+        a pattern the calibration could not use, e.g. a failed start).
     points
         Calibration points (N, 2) as (row, column).
     parameter_names
         The refined parameters, in canonical order.
     parameters
         ``{name: refined value}`` for the refined parameters.
+    standard_errors
+        ``{name: sigma}`` for every refined parameter, in its unit, plus
+        ``"tilt-sample_tilt"`` when either tilt is refined: from the
+        joint normal matrix at the refined geometry (rotations
+        eliminated, ``orientation_prior`` included) and the measured
+        residual scatter. ``inf`` for tilt and sample_tilt when both are
+        refined: only their difference is determined.
+    undetermined
+        Parameters the map could not determine (standard error above
+        :data:`DETERMINACY_LIMITS`): kept at their start value.
+    solver
+        "joint" or "paper".
     history
         One dict per trial step: ``parameters`` (values after the step),
-        ``ncc_before``, ``ncc_after`` (mean NCC after orientation
-        refinement, on the binned patterns of the loop for patterns of
-        120 px or more; NaN for a step rejected on its displacement alone),
-        ``displacement_before``, ``displacement_after`` (mean displacement
-        magnitude as a fraction of the detector width, both measured with
-        the orientations of the state the step starts from), ``damping``
-        and ``accepted``.
+        ``ncc_before``, ``ncc_after`` (mean NCC; NaN for a rejected step),
+        ``displacement_before``, ``displacement_after`` (the solver's
+        objective as a fraction of the detector width: RMS of the
+        per-pattern ROI displacements for the joint solver, mean
+        magnitude of the average field for the paper's), ``damping``,
+        ``accepted`` and, joint solver, ``standard_errors`` of the step.
+        Paper solver: the NCC is after orientation refinement, on the
+        binned patterns of the loop for patterns of 120 px or more.
     jacobian
-        Jacobian (2R, K) at the last accepted geometry, pixels per
-        parameter unit, columns in *parameter_names* order.
+        Jacobian (2R, K) of the average field at the refined geometry,
+        pixels per parameter unit, columns in *parameter_names* order.
     coupling
         Normalised coupling matrix (K, K), the paper's Fig. 3C.
     singular_values
-        Singular values of the weighted, column-normalised Jacobian.
+        Singular values of the weighted, column-normalised Jacobian of
+        the average field.
     degenerate
         Parameter combinations the data cannot constrain, as
         ``{name: coefficient}`` dicts (e.g. tilt and sample_tilt).
@@ -123,10 +162,10 @@ class GeometryRefinementResult:
         :class:`~kikuchipy_geomdic.displacement.DisplacementField` at the
         start and at the refined geometry.
     converged
-        Whether the loop ended by its tolerances (NCC gain below
-        ``ncc_tolerance`` and the displacement no longer falling, or no
-        step able to lower it further) rather than by *max_iterations*
-        or by rejections before the NCC had settled.
+        Whether the loop ended by its tolerances (joint: every step below
+        its standard error; paper: NCC gain below ``ncc_tolerance`` and
+        the displacement no longer falling) rather than by
+        *max_iterations* or by rejected steps.
     """
 
     detector: EBSDDetector
@@ -136,6 +175,9 @@ class GeometryRefinementResult:
     points: np.ndarray
     parameter_names: tuple[str, ...]
     parameters: dict[str, float]
+    standard_errors: dict[str, float]
+    undetermined: tuple[str, ...]
+    solver: str
     history: list[dict[str, Any]]
     jacobian: np.ndarray
     coupling: np.ndarray
@@ -147,14 +189,51 @@ class GeometryRefinementResult:
     steps: dict[str, float] = field(default_factory=dict)
 
     def __repr__(self) -> str:
-        lines = [f"{type(self).__name__} ({len(self.points)} points, "
-                 f"{len(self.history)} iterations, converged={self.converged})"]
-        start = self.start_geometry.as_dict()
-        for name in self.parameter_names:
-            lines.append(
-                f"  {name:<12} {start[name]:>10.5f} -> {self.parameters[name]:>10.5f}"
-            )
-        return "\n".join(lines)
+        return self.table()
+
+    def table(self, truth: MapGeometry | None = None) -> str:
+        """Return start and refined values with standard errors as text.
+
+        Parameters
+        ----------
+        truth
+            Known geometry (synthetic data) to add true values and errors.
+        """
+        head = (
+            f"{type(self).__name__} ({self.solver} solver, {len(self.points)} points, "
+            f"{len(self.history)} steps, converged={self.converged}, DIC "
+            f"{self.field_after.backend})"
+        )
+        cols = f"{'parameter':<17}{'start':>10}{'refined':>11}{'sigma':>10}"
+        if truth is not None:
+            cols += f"{'true':>11}{'error':>11}"
+        lines = [head, cols + "  unit"]
+        start, true = self.start_geometry.as_dict(), None
+        if truth is not None:
+            true = truth.as_dict()
+        rows = [(n, start[n], self.parameters[n]) for n in self.parameter_names]
+        if TILT_DIFFERENCE in self.standard_errors:
+            ref = {**start, **self.parameters}
+            rows.append((TILT_DIFFERENCE, start["tilt"] - start["sample_tilt"],
+                         ref["tilt"] - ref["sample_tilt"]))
+            if true is not None:
+                true[TILT_DIFFERENCE] = true["tilt"] - true["sample_tilt"]
+        notes = []
+        for name, a, b in rows:
+            pc = name.startswith("pc")
+            f = "{:>10.6f}" if pc else "{:>10.4f}"
+            se = self.standard_errors.get(name, float("nan"))
+            line = f"{name:<17}" + f.format(a) + " " + f.format(b)
+            line += f"{se:>10.1e}" if np.isfinite(se) else f"{'-':>10}"
+            if true is not None:
+                line += " " + f.format(true[name]) + " " + ("{:>+10.6f}" if pc else "{:>+10.4f}").format(b - true[name])
+            line += "  " + ("PC" if pc else "deg")
+            if name in self.undetermined:
+                line += "  not determined: kept"
+            lines.append(line)
+        if any(not np.isfinite(self.standard_errors.get(n, 0)) for n in self.parameter_names):
+            notes.append("tilt and sample_tilt: only their difference is determined")
+        return "\n".join(lines + notes)
 
     def plot_displacement(self, **kwargs):
         """Plot the average displacement field before and after (quiver).
@@ -327,11 +406,40 @@ def _check_inputs(signal, xmap, detector, master_pattern, phase, nav):
 
 
 # --------------------------------------------------------------------- #
-# The loop
+# The problem: everything that stays fixed during a refinement
 # --------------------------------------------------------------------- #
 
+#: Solvers of :func:`refine_geometry_dic`.
+SOLVERS = ("joint", "paper")
 
-@dataclass
+#: A parameter whose standard error exceeds this (its unit) is not
+#: determined by the map: the joint solver keeps it at its start value
+#: instead of letting noise move it. PC: 1e-3 is what pattern-wise
+#: refinement reaches on single patterns; angles: 0.1 deg is the accuracy
+#: of a goniometer or detector-installation readout.
+DETERMINACY_LIMITS = {
+    "pcx": 1e-3,
+    "pcy": 1e-3,
+    "pcz": 1e-3,
+    "tilt": 0.1,
+    "azimuthal": 0.1,
+    "sample_tilt": 0.1,
+    "twist": 0.1,
+}
+
+#: Name of the determined combination of the two equivalent tilts.
+TILT_DIFFERENCE = "tilt-sample_tilt"
+
+#: A step that lowers the displacement by less than this fraction ends
+#: the joint loop: the measurement's noise floor is reached.
+MIN_FALL = 0.1
+
+#: Largest number of trial steps, each with ten times the damping of the
+#: one before, before an iteration gives up.
+MAX_TRIALS = 3
+
+
+@dataclass(frozen=True)
 class _Problem:
     """Everything that stays fixed during a refinement."""
 
@@ -345,6 +453,7 @@ class _Problem:
     steps: dict[str, float]
     dic_kwargs: dict
     refine_kwargs: dict
+    pseudo_symmetry_ops: Rotation | None = None
 
     def simulate(self, geometry: MapGeometry, rotations: Rotation) -> np.ndarray:
         det = geometry.detector(self.points)
@@ -353,6 +462,11 @@ class _Problem:
     def measure(self, geometry: MapGeometry, rotations: Rotation) -> dsp.DisplacementField:
         sim = self.simulate(geometry, rotations)
         return dsp.measure_displacements(sim, self.experimental, **self.dic_kwargs)
+
+    def ncc(self, geometry: MapGeometry, rotations: Rotation) -> np.ndarray:
+        """NCC (N,) of the patterns simulated at *geometry* with the
+        experimental ones, full resolution."""
+        return _ncc(self.simulate(geometry, rotations), self.experimental)
 
     def refine_orientations(
         self, geometry: MapGeometry, rotations: Rotation, binning: int | None = None
@@ -372,17 +486,18 @@ class _Problem:
         xmap = CrystalMap(
             rotations=rotations, x=np.arange(n, dtype=float), phase_list=PhaseList(self.phase)
         )
+        kw = dict(self.refine_kwargs)
+        if self.pseudo_symmetry_ops is not None:
+            kw["pseudo_symmetry_ops"] = self.pseudo_symmetry_ops
         # kikuchipy prints a summary and a dask progress bar per call
         with contextlib.redirect_stdout(io.StringIO()):
-            ref = signal.refine_orientation(
-                xmap, det, self.master_pattern, self.energy, **self.refine_kwargs
-            )
+            ref = signal.refine_orientation(xmap, det, self.master_pattern, self.energy, **kw)
         return ref.rotations, ref.scores
 
     @property
     def loop_binning(self) -> int:
-        """Binning of the orientation refinements inside the loop: the
-        largest factor dividing the pattern shape that keeps at least
+        """Binning of the orientation refinements inside the paper's loop:
+        the largest factor dividing the pattern shape that keeps at least
         60 px a side. Orientations refined from 60 px patterns were as
         precise (0.0025 deg) as from 120 px ones (0.0022 deg) at a quarter
         of the cost; the final orientations use full resolution."""
@@ -393,33 +508,33 @@ class _Problem:
                 b = f
         return b
 
+    def operators(self) -> Rotation:
+        """Identity followed by the pseudo-symmetry operators."""
+        ops = Rotation.identity(1)
+        if self.pseudo_symmetry_ops is not None:
+            ops = Rotation(np.concatenate([ops.data, self.pseudo_symmetry_ops.flatten().data]))
+        return ops
+
     def variants(self, rotations: Rotation) -> tuple[np.ndarray, Rotation]:
         """Return, per point, the pseudo-symmetry operator (0: none) that
         brings the start closest to *rotations*, and the remaining
         deviation ``~(op * start) * rotation`` (a sample-frame rotation)."""
-        ops = self.refine_kwargs.get("pseudo_symmetry_ops")
-        ops_all = Rotation.identity(1)
-        if ops is not None:
-            ops_all = Rotation(np.concatenate([ops_all.data, ops.flatten().data]))
+        ops_all = self.operators()
         angles = np.stack(
             [(~(op * self.start_rotations) * rotations).angle for op in ops_all], axis=1
         )
         k = np.argmin(angles, axis=1)
         return k, ~(ops_all[k] * self.start_rotations) * rotations
 
-    def anchor(self, rotations: Rotation) -> Rotation:
-        """Remove the mean deviation from the start (see module notes)."""
-        _, dq = self.variants(rotations)
-        # Far-off points (another variant not among the operators, or a
-        # failed refinement) are not small deviations
-        small = dq.angle < np.deg2rad(5)
-        if not small.any():
+    def best_variants(self, geometry: MapGeometry, rotations: Rotation) -> Rotation:
+        """Return per point the variant ``op * rotation`` whose simulated
+        pattern correlates best with the experimental one."""
+        ops = self.operators()
+        if ops.size == 1:
             return rotations
-        mean = (dq.axis.data * dq.angle[:, None])[small].mean(axis=0)
-        a = np.linalg.norm(mean)
-        if a == 0:
-            return rotations
-        return rotations * ~Rotation.from_axes_angles(mean / a, a)
+        scores = np.stack([self.ncc(geometry, op * rotations) for op in ops], axis=1)
+        k = np.argmax(scores, axis=1)
+        return ops[k] * rotations
 
     def jacobian(
         self, geometry: MapGeometry, rotations: Rotation, field0: dsp.DisplacementField, kind: str
@@ -433,219 +548,266 @@ class _Problem:
         )
 
 
+def _ncc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    a = np.asarray(a, dtype=np.float64).reshape(len(a), -1)
+    b = np.asarray(b, dtype=np.float64).reshape(len(b), -1)
+    a = a - a.mean(axis=1, keepdims=True)
+    b = b - b.mean(axis=1, keepdims=True)
+    return (a * b).sum(axis=1) / np.sqrt((a * a).sum(axis=1) * (b * b).sum(axis=1))
+
+
+def _rotvec(rotations: Rotation) -> np.ndarray:
+    """Rotation vectors (n, 3) in radians, angles in [0, pi]."""
+    r = Rotation(rotations.data * np.where(rotations.a < 0, -1, 1)[..., None])
+    return np.nan_to_num(r.axis.data) * r.angle[:, None]
+
+
+def _from_rotvec(v: np.ndarray) -> Rotation:
+    v = np.asarray(v, dtype=np.float64).reshape(-1, 3)
+    angle = np.linalg.norm(v, axis=1)
+    axis = np.where(angle[:, None] > 0, v / np.where(angle > 0, angle, 1)[:, None], [0, 0, 1])
+    return Rotation.from_axes_angles(axis, angle)
+
+
 def _mean_displacement(f: dsp.DisplacementField) -> float:
     """Mean magnitude of the average field over ROIs with vectors, as a
-    fraction of the detector width."""
+    fraction of the detector width: the paper's objective."""
     has = f.total_counts > 0
     if not has.any():
         return float("nan")
     return float(np.linalg.norm(f.mean[has], axis=1).mean() / f.shape[1])
 
 
-def refine_geometry_dic(
-    signal: EBSD,
-    xmap: CrystalMap,
-    detector: EBSDDetector,
-    master_pattern: EBSDMasterPattern,
-    energy: float,
-    parameters: Sequence[str] = DEFAULT_PARAMETERS,
-    points: int | np.ndarray = 100,
-    steps: Mapping[str, float] | None = None,
-    rois: tuple[int, int] = (8, 8),
-    binning: int = 1,
-    dic: str = "auto",
-    jacobian: str = "analytic",
-    damping: float = 1e-3,
-    max_iterations: int = 10,
-    ncc_tolerance: float = 0.005,
-    refine_kwargs: Mapping[str, Any] | None = None,
-    dic_kwargs: Mapping[str, Any] | None = None,
-    phase: str | int | None = None,
-    seed: int | None = 0,
-    show_progressbar: bool | None = None,
-) -> GeometryRefinementResult:
-    """Refine the global sample-detector geometry of a map by global DIC.
+def _rms_displacement(f: dsp.DisplacementField, variances: np.ndarray | None = None) -> float:
+    """Weighted RMS of the per-pattern ROI displacements, as a fraction of
+    the detector width: the joint solver's objective. Weights are vector
+    counts, divided by each pattern's vector variance if given."""
+    c = f.counts.astype(np.float64)
+    if variances is not None:
+        c = c / np.asarray(variances)[:, None]
+    if c.sum() == 0:
+        return float("nan")
+    return float(np.sqrt((c * (f.u**2).sum(axis=-1)).sum() / c.sum()) / f.shape[1])
 
-    Parameters
-    ----------
-    signal
-        EBSD map (``EBSD`` or ``LazyEBSD``), 1D or 2D navigation shape,
-        navigation axes scaled by the step sizes in micrometres.
-    xmap
-        Starting orientations for the map (e.g. Hough indexing), of the
-        signal's navigation shape. Points not indexed (phase -1, zero or
-        NaN rotations) are not used.
-    detector
-        Starting geometry: one PC (taken at the map centre) or one PC per
-        map point (its mean is taken at the mean position).
-    master_pattern
-        Lambert master pattern of the phase.
-    energy
-        Beam energy in kV.
-    parameters
-        Parameters to refine, from
-        :data:`~kikuchipy_geomdic.geometry.PARAMETERS`. Default the
-        paper's six. Both ``tilt`` and ``sample_tilt`` may be given: only
-        their difference is determined and the change is split equally
-        (see :mod:`~kikuchipy_geomdic.solve`); leave one out to keep it
-        fixed.
-    points
-        Number of calibration points spread evenly over the map, or an
-        explicit (N, 2) integer array of (row, column).
-    steps
-        Central-difference step per parameter; defaults in
-        :data:`~kikuchipy_geomdic.geometry.DEFAULT_STEPS`.
-    rois
-        ROI grid (rows, columns) of the displacement field.
-    binning
-        Pixel binning before feature detection and tracking.
-    dic
-        "auto" (OpenCV if importable, else scikit-image), "opencv" or
-        "skimage".
-    jacobian
-        "analytic" (default: the forward displacement map evaluated at
-        the measured feature positions, no simulation) or
-        "finite-difference" (the paper's Eqs. 4-5: a simulation and DIC
-        pass per +-delta). Both reach the same geometry (the fixed point
-        is b = 0 either way); the analytic one is free of DIC noise and
-        about four times faster.
-    damping
-        lambda of Eq. 10.
-    max_iterations
-        Upper bound on geometry updates.
-    ncc_tolerance
-        NCC gain below which the loop may stop, and NCC loss above which
-        a step is rejected.
-    refine_kwargs
-        Passed to kikuchipy's :meth:`~kikuchipy.signals.EBSD.refine_orientation`
-        (``method``, ``method_kwargs``, ``trust_region``,
-        ``pseudo_symmetry_ops``, ...).
-    dic_kwargs
-        Further options of
-        :func:`~kikuchipy_geomdic.displacement.measure_displacements`
-        (``noise``, ``max_roi_crossings``, ...).
-    phase
-        Phase name or id in *xmap* to calibrate with; required when *xmap*
-        has several phases.
-    seed
-        Seed of the DIC noise.
-    show_progressbar
-        Print one line per step. Default: on.
 
-    Returns
-    -------
-    result
-        :class:`GeometryRefinementResult`. The inputs are not modified.
+# --------------------------------------------------------------------- #
+# The joint solver
+# --------------------------------------------------------------------- #
 
-    Examples
-    --------
-    >>> from kikuchipy_geomdic import synthetic, refine_geometry_dic
-    >>> sm = synthetic.synthetic_map("Si", (5, 5), shape=(60, 60), seed=0)
-    >>> res = refine_geometry_dic(
-    ...     sm.signal, sm.start_xmap, sm.start_detector, sm.master_pattern, 20,
-    ...     parameters=["pcx", "pcy", "pcz"], points=25, jacobian="analytic",
-    ...     max_iterations=3, show_progressbar=False,
-    ... )
-    >>> res.detector.navigation_shape
-    (5, 5)
-    """
-    if show_progressbar is None:
-        show_progressbar = True
-    names = check_parameters(parameters)
-    if jacobian not in _JACOBIANS:
-        raise ValueError(f"jacobian must be one of {_JACOBIANS}, not {jacobian!r}")
-    nav = _navigation_shape(signal)
-    phase_id = _check_inputs(signal, xmap, detector, master_pattern, phase, nav)
-    step_all = dict(DEFAULT_STEPS)
-    if steps:
-        check_parameters(list(steps))
-        step_all.update({k: float(v) for k, v in steps.items()})
-    if any(step_all[n] <= 0 for n in names):
-        raise ValueError("Finite-difference steps must be positive")
 
-    usable = usable_points(xmap, phase_id).reshape(nav)
-    if np.ndim(points) == 0:
-        pts = calibration_points(nav, int(points), usable)
-    else:
-        pts = np.asarray(points)
-        if pts.ndim != 2 or pts.shape[1] != 2 or not np.issubdtype(pts.dtype, np.integer):
-            raise ValueError("points must be an int or an (N, 2) integer array of (row, col)")
-        outside = (pts < 0).any(axis=1) | (pts[:, 0] >= nav[0]) | (pts[:, 1] >= nav[1])
-        if outside.any():
-            raise ValueError(
-                f"{outside.sum()} point(s) lie outside the map of shape {nav}, e.g. "
-                f"{pts[outside][0].tolist()}"
-            )
-        bad = ~usable[pts[:, 0], pts[:, 1]]
-        if bad.any():
-            raise ValueError(
-                f"{bad.sum()} point(s) are not indexed with the chosen phase, e.g. "
-                f"{pts[bad][0].tolist()}"
-            )
-    n_free = len(names) - sum(
-        1 for n in names if n in EQUIVALENT_PARAMETERS and EQUIVALENT_PARAMETERS[n][0] in names
-    )
-    if len(pts) < max(n_free, 2):
-        raise ValueError(
-            f"{len(pts)} usable calibration point(s) for {n_free} independent "
-            "parameter(s): at least as many points as parameters (and 2) are needed"
+def _solved_parameters(names: Sequence[str]) -> tuple[tuple[str, ...], dict[str, str]]:
+    """Parameters the joint solve has columns for, and ``{name: base}``
+    for each parameter left out because its column is a multiple of a
+    solved one's (:data:`~kikuchipy_geomdic.geometry.EQUIVALENT_PARAMETERS`)."""
+    solved, split = [], {}
+    for n in names:
+        base = EQUIVALENT_PARAMETERS.get(n, (None,))[0]
+        if base in names:
+            split[n] = base
+        else:
+            solved.append(n)
+    return tuple(solved), split
+
+
+def _expand(delta: Mapping[str, float], split: Mapping[str, str]) -> dict[str, float]:
+    """Changes of all parameters from those of the solved ones: a change
+    of a base column is split with its equivalent at minimum norm (for
+    tilt and sample_tilt, equal and opposite halves)."""
+    out = dict(delta)
+    for name, base in split.items():
+        if base in delta:
+            f = EQUIVALENT_PARAMETERS[name][1]
+            out[base] = delta[base] / (1 + f**2)
+            out[name] = f * delta[base] / (1 + f**2)
+    return out
+
+
+def _pattern_weights(field: dsp.DisplacementField, variances: np.ndarray | None) -> np.ndarray:
+    """Inverse variances (N, 2R) of the ROI components: an ROI mean of
+    ``c`` vectors has ``c`` times a vector's precision, and each pattern
+    has its own vector variance (grain boundaries, worse patterns)."""
+    w = np.repeat(field.counts.astype(np.float64), 2, axis=1)
+    if variances is not None:
+        w = w / variances[:, None]
+    return w
+
+
+def _pattern_variances(
+    field: dsp.DisplacementField, jg: np.ndarray, jr: np.ndarray, update: JointUpdate
+) -> np.ndarray:
+    """Per-pattern vector variances from the residuals of a fit, never
+    below the median pattern's, so that a lucky pattern gains no weight."""
+    n = field.n_patterns
+    b = field.u.reshape(n, -1)
+    r = b + jg @ update.delta + np.einsum("nmk,nk->nm", jr, update.rotations)
+    c = np.repeat(field.counts, 2, axis=1)
+    m = (c > 0).sum(axis=1)
+    rss = (c * r**2).sum(axis=1)
+    var = np.where(m > 3, rss / np.maximum(m - 3, 1), np.nan)
+    floor = np.nanmedian(var) if np.isfinite(var).any() else 1.0
+    return np.where(np.isfinite(var), np.maximum(var, floor), floor)
+
+
+def _joint_solve(
+    problem: _Problem,
+    geometry: MapGeometry,
+    field: dsp.DisplacementField,
+    offsets: np.ndarray,
+    solved: Sequence[str],
+    prior: float | None,
+    damping: float,
+) -> tuple[JointUpdate, np.ndarray]:
+    """One linear joint solve at *geometry* with the measured *field*;
+    also returns the per-pattern variances it weighted with."""
+    n = field.n_patterns
+    jg, jr = pattern_jacobian(geometry, problem.points, field.positions, solved, problem.steps)
+    jg = jg.reshape(n, -1, len(solved))
+    jr = jr.reshape(n, -1, 3)
+    b = field.u.reshape(n, -1)
+    # First without the prior, to learn each pattern's noise; then with
+    # the weights in inverse pixels squared, the units of the prior
+    first = solve_joint(jg, jr, b, _pattern_weights(field, None), damping=damping)
+    var = _pattern_variances(field, jg, jr, first)
+    w = _pattern_weights(field, var)
+    return solve_joint(jg, jr, b, w, prior=prior, offsets=offsets, damping=damping), var
+
+
+def _joint_loop(problem, geometry0, rotations0, prior, damping, max_iterations, say):
+    """The joint refinement; returns the final state, history, whether it
+    converged, the first field and the parameters kept at their start."""
+    names = problem.parameters
+    solved, split = _solved_parameters(names)
+    prior_rad = None if prior is None else np.deg2rad(prior) / np.sqrt(3)
+
+    def offsets_of(rot):
+        _, dq = problem.variants(rot)
+        return _rotvec(dq)
+
+    field = problem.measure(geometry0, rotations0)
+    state = dict(geometry=geometry0, rotations=rotations0, field=field)
+    state["ncc"] = float(np.mean(problem.ncc(geometry0, rotations0)))
+    field_before = field
+    history, converged, lam = [], False, damping
+    settled, kept, weak = False, None, []
+    for it in range(max_iterations):
+        offsets = offsets_of(state["rotations"])
+        update, var = _joint_solve(
+            problem, state["geometry"], state["field"], offsets, solved, prior_rad, 0.0
         )
+        # A parameter the map cannot determine at the present noise level
+        # is left where it is; far from the solution the residuals, and
+        # so the errors, are large, and only the PC may move at first
+        se = dict(zip(solved, update.standard_errors))
+        weak = [n for n in solved if se[n] > DETERMINACY_LIMITS[n]]
+        free = [n for n in solved if n not in weak]
+        # Settled, and no parameter has become determinable since
+        if (settled and weak == kept) or not free:
+            # Variants are told apart only near the solution: a wrong one
+            # is then re-fitted from its correct variant
+            rot = problem.best_variants(state["geometry"], state["rotations"])
+            if np.array_equal(rot.data, state["rotations"].data) or not free:
+                converged = True
+                break
+            state.update(rotations=rot, field=problem.measure(state["geometry"], rot))
+            offsets = offsets_of(rot)
+        settled, kept = False, weak
+        # Steps are judged by the objective of the solve: each pattern
+        # weighted by its own precision, so one failed pattern cannot
+        # veto a step
+        before = _rms_displacement(state["field"], var)
+        accepted = False
+        for _ in range(MAX_TRIALS):
+            update, _ = _joint_solve(
+                problem, state["geometry"], state["field"], offsets, free, prior_rad, lam
+            )
+            delta = _expand(dict(zip(free, update.delta)), split)
+            geo = state["geometry"].updated(delta)
+            rot = state["rotations"] * _from_rotvec(update.rotations)
+            fld = problem.measure(geo, rot)
+            after = _rms_displacement(fld, var)
+            accepted = bool(after < before)
+            ncc = float(np.mean(problem.ncc(geo, rot))) if accepted else float("nan")
+            history.append(
+                dict(
+                    iteration=it,
+                    parameters=dict(zip(names, map(float, geo.values(names)))),
+                    ncc_before=state["ncc"],
+                    ncc_after=ncc,
+                    displacement_before=before,
+                    displacement_after=after,
+                    damping=lam,
+                    accepted=accepted,
+                    standard_errors=dict(zip(free, map(float, update.standard_errors))),
+                    kept=tuple(weak),
+                )
+            )
+            say(
+                f"  iteration {it}: RMS displacement {100 * before:.4f} -> "
+                f"{100 * after:.4f} % of width, NCC {state['ncc']:.4f} -> {ncc:.4f}, "
+                f"{'accepted' if accepted else 'rejected'}"
+                + (f" (kept: {', '.join(weak)})" if weak else "")
+            )
+            if accepted:
+                state = dict(geometry=geo, rotations=rot, field=fld, ncc=ncc)
+                lam = lam / 10
+                break
+            lam = max(10 * lam, 1e-3)
+        if not accepted:
+            # Nothing lowers the displacement any more: the measurement's
+            # floor, if an earlier step got there
+            converged = any(h["accepted"] for h in history)
+            break
+        settled = _within_errors(update) or 1 - after / before < MIN_FALL
+    else:
+        converged = settled
+    return state, history, converged, field_before, tuple(weak)
 
-    exp = _experimental(signal, pts, nav)
-    geometry0 = MapGeometry.from_detector(detector, _step_sizes(signal), nav)
-    flat = pts[:, 0] * nav[1] + pts[:, 1]
-    lookup = np.full(nav[0] * nav[1], -1)
-    lookup[xmap.id] = np.arange(xmap.size)
-    start_rot = Rotation(xmap.rotations.data[lookup[flat]])
 
-    dic_kw = dict(rois=tuple(rois), binning=binning, dic=dic, seed=seed)
-    dic_kw.update(dic_kwargs or {})
-    ref_kw = dict(refine_kwargs or {})
-    problem = _Problem(
-        experimental=exp,
-        points=pts,
-        start_rotations=start_rot,
-        master_pattern=master_pattern,
-        energy=float(energy),
-        # The master pattern's phase, checked above to have xmap's point
-        # group: kikuchipy refuses phases whose atom lists differ in order
-        # (as after a round trip through an h5ebsd file)
-        phase=master_pattern.phase.deepcopy(),
-        parameters=names,
-        steps={n: step_all[n] for n in names},
-        dic_kwargs=dic_kw,
-        refine_kwargs=ref_kw,
-    )
-    say = print if show_progressbar else (lambda *a, **k: None)
+def _within_errors(update: JointUpdate) -> bool:
+    se = update.standard_errors
+    return bool(np.all(np.abs(update.delta) <= np.where(np.isfinite(se), se, np.inf)))
 
-    # The starting state, judged after orientation refinement like every
-    # later state
-    say(f"Refining the geometry with {len(pts)} calibration points: {', '.join(names)}")
-    rot_ref, scores = problem.refine_orientations(geometry0, start_rot)
+
+# --------------------------------------------------------------------- #
+# The paper's solver
+# --------------------------------------------------------------------- #
+
+
+def _anchor(problem: _Problem, rotations: Rotation) -> Rotation:
+    """Remove the mean deviation of *rotations* from the start: the paper
+    solver measures the angles against the starting orientations."""
+    _, dq = problem.variants(rotations)
+    # Far-off points (another variant not among the operators, or a
+    # failed refinement) are not small deviations
+    small = dq.angle < np.deg2rad(5)
+    if not small.any():
+        return rotations
+    mean = _rotvec(dq)[small].mean(axis=0)
+    return rotations * ~_from_rotvec(mean)
+
+
+def _paper_loop(problem, geometry0, rotations0, jacobian, damping, max_iterations,
+                ncc_tolerance, say):
+    """The paper's loop (Fig. 4): average field, Eqs. 8-11, kikuchipy
+    orientation refinement and NCC acceptance; see the module notes."""
+    names = problem.parameters
+    rot_ref, scores = problem.refine_orientations(geometry0, rotations0)
+    # The first field uses the starting orientations themselves, as the
+    # paper does: orientations refined at a far-off start absorb much of
+    # a large geometry error (measured: a 6 % start read as 1.4 %), and
+    # the loop then converges to a wrong geometry
+    field = problem.measure(geometry0, rotations0)
     state = dict(
-        geometry=geometry0,
-        # The first field uses the starting orientations themselves, as the
-        # paper does: orientations refined at a far-off start absorb much of
-        # a large geometry error (measured: a 6 % start read as 1.4 %), and
-        # the loop then converges to a wrong geometry
-        rotations=start_rot,
-        refined=rot_ref,
-        scores=scores,
-        ncc=float(np.mean(scores)),
+        geometry=geometry0, rotations=rotations0, refined=rot_ref, scores=scores,
+        ncc=float(np.mean(scores)), field=field, disp=_mean_displacement(field),
     )
-    state["field"] = problem.measure(geometry0, state["rotations"])
-    field_before = state["field"]
-    state["disp"] = _mean_displacement(state["field"])
-    history = []
-    converged = False
-    jac = None
-    update = None
-    gain = np.inf
+    field_before = field
+    history, converged, gain = [], False, np.inf
     for it in range(max_iterations):
         jac = problem.jacobian(state["geometry"], state["rotations"], state["field"], jacobian)
         lam = damping
         step_taken = False
-        for attempt in range(3):
+        for _ in range(MAX_TRIALS):
             update = solve_update(jac, state["field"].residual, state["field"].weights, lam)
             geo = state["geometry"].updated(dict(zip(names, update.delta)))
             # Judge the step first by the displacement with the current
@@ -676,7 +838,7 @@ def refine_geometry_dic(
                 f"{'accepted' if accepted else 'rejected'}"
             )
             if accepted:
-                rot = problem.anchor(rot_ref)
+                rot = _anchor(problem, rot_ref)
                 fld = problem.measure(geo, rot)
                 gain = ncc - state["ncc"]
                 fall = 1 - disp / state["disp"]
@@ -690,18 +852,319 @@ def refine_geometry_dic(
         if not step_taken:
             # No step lowers the displacement any more: converged if the
             # NCC had stopped gaining too (the paper's criterion)
-            converged = bool(history) and any(h["accepted"] for h in history) and gain < ncc_tolerance
+            converged = any(h["accepted"] for h in history) and gain < ncc_tolerance
             break
         if gain < ncc_tolerance and fall < 0.1:
             converged = True
             break
+    # The orientations refined at the final geometry, not anchored: the
+    # best estimate of each orientation given the calibrated geometry
+    state["rotations"] = state["refined"]
+    return state, history, converged, field_before, ()
 
-    geometry = state["geometry"]
-    # Orientations refined at the final geometry, not anchored: the best
-    # estimate of each orientation given the calibrated geometry
-    final_rot, final_scores = state["refined"], state["scores"]
-    if problem.loop_binning > 1:
-        final_rot, final_scores = problem.refine_orientations(geometry, final_rot, binning=1)
+
+# --------------------------------------------------------------------- #
+# The function
+# --------------------------------------------------------------------- #
+
+
+def refine_geometry_dic(
+    signal: EBSD,
+    xmap: CrystalMap,
+    detector: EBSDDetector,
+    master_pattern: EBSDMasterPattern,
+    energy: float,
+    *,
+    parameters: Sequence[str] = DEFAULT_PARAMETERS,
+    points: int | np.ndarray = 100,
+    solver: str = "joint",
+    orientation_prior: float | None = None,
+    pseudo_symmetry_ops: Rotation | None = None,
+    steps: Mapping[str, float] | None = None,
+    rois: tuple[int, int] = (8, 8),
+    binning: int = 1,
+    dic: str = "auto",
+    jacobian: str = "analytic",
+    damping: float | None = None,
+    max_iterations: int = 10,
+    ncc_tolerance: float = 0.005,
+    refine_kwargs: Mapping[str, Any] | None = None,
+    dic_kwargs: Mapping[str, Any] | None = None,
+    phase: str | int | None = None,
+    seed: int | None = 0,
+    show_progressbar: bool | None = None,
+) -> GeometryRefinementResult:
+    """Refine the global sample-detector geometry of a map by global DIC.
+
+    Parameters
+    ----------
+    signal
+        EBSD map (``EBSD`` or ``LazyEBSD``), 1D or 2D navigation shape,
+        navigation axes scaled by the step sizes in micrometres.
+    xmap
+        Starting orientations for the map (e.g. Hough or dictionary
+        indexing at the nominal geometry), of the signal's navigation
+        shape. Points not indexed (phase -1, zero or NaN rotations) are
+        not used.
+    detector
+        Starting geometry: one PC (taken at the map centre) or one PC per
+        map point (its mean is taken at the mean position).
+    master_pattern
+        Lambert master pattern of the phase.
+    energy
+        Beam energy in kV.
+    parameters
+        Parameters to refine, from
+        :data:`~kikuchipy_geomdic.geometry.PARAMETERS`. Default the
+        paper's six. Both ``tilt`` and ``sample_tilt`` may be given: only
+        their difference is determined and its change is split equally
+        (reported in :attr:`GeometryRefinementResult.degenerate`); leave
+        one out to keep it fixed.
+    points
+        Number of calibration points spread evenly over the map, or an
+        explicit (N, 2) integer array of (row, column).
+    solver
+        "joint" (default): every pattern's displacement field is fitted
+        with the geometry and one small rotation per pattern, the
+        rotations eliminated exactly (Schur complement, see
+        :func:`~kikuchipy_geomdic.solve.solve_joint`), orientations
+        updated from the same fields: right whatever common error the
+        starting orientations share, as orientations indexed at a wrong
+        geometry do. "paper": the paper's algorithm (average field,
+        Eqs. 8-11, kikuchipy orientation refinement and NCC acceptance
+        in the loop), accurate when the starting orientation errors are
+        random and cancel in the average.
+    orientation_prior
+        Joint solver: RMS error in degrees of the starting orientations,
+        believed independent and zero-mean over the points (the paper's
+        perturbation study). It adds ``|w_i|^2 / s^2`` per orientation
+        (``w_i`` its rotation away from the start, ``s`` the RMS per
+        axis) to the fit, which pins the rotation common to all
+        orientations, and with it the detector angles, to the start's.
+        None (default): the starting orientations say nothing about their
+        common rotation, and the angles are seen only through the PC
+        field across the map.
+    pseudo_symmetry_ops
+        Pseudo-symmetry operators (orix ``Rotation``, crystal frame, left
+        factors ``op * rotation``), e.g.
+        ``synthetic.variant_operators()[1:]`` for BaTiO3. The joint
+        solver picks per point the variant whose simulated pattern
+        correlates best, before the loop and at the refined geometry; the
+        paper solver passes them to kikuchipy.
+    steps
+        Central-difference step per parameter; defaults in
+        :data:`~kikuchipy_geomdic.geometry.DEFAULT_STEPS`.
+    rois
+        ROI grid (rows, columns) of the displacement field.
+    binning
+        Pixel binning before feature detection and tracking.
+    dic
+        "auto" (OpenCV if importable, else scikit-image), "opencv" or
+        "skimage".
+    jacobian
+        Paper solver: "analytic" (default: the forward displacement map
+        evaluated at the measured feature positions, no simulation) or
+        "finite-difference" (the paper's Eqs. 4-5). The joint solver is
+        always analytic.
+    damping
+        Paper solver: lambda of Eq. 10 (default 1e-3). Joint solver: the
+        starting Levenberg-Marquardt damping (default 0, Gauss-Newton),
+        raised tenfold after a step that does not lower the displacement.
+    max_iterations
+        Upper bound on geometry updates.
+    ncc_tolerance
+        Paper solver: NCC gain below which the loop may stop, and NCC
+        loss above which a step is rejected.
+    refine_kwargs
+        Options of kikuchipy's
+        :meth:`~kikuchipy.signals.EBSD.refine_orientation` (``method``,
+        ``method_kwargs``, ``trust_region``, ...). Joint solver: None
+        (default) keeps the orientations of the joint solve, which are
+        measured from the same displacement fields as the geometry and
+        cost nothing more; a dict (``{}`` for kikuchipy's defaults)
+        refines them once more with kikuchipy at full resolution at the
+        refined geometry. Paper solver: used in the loop.
+    dic_kwargs
+        Further options of
+        :func:`~kikuchipy_geomdic.displacement.measure_displacements`
+        (``noise``, ``blur``, ``max_roi_crossings``, ...).
+    phase
+        Phase name or id in *xmap* to calibrate with; required when *xmap*
+        has several phases.
+    seed
+        Seed of the DIC noise.
+    show_progressbar
+        Print one line per step. Default: on.
+
+    Returns
+    -------
+    result
+        :class:`GeometryRefinementResult` with the geometry, its
+        :attr:`~GeometryRefinementResult.standard_errors`, and the
+        orientations of the calibration points. The inputs are not
+        modified.
+
+    Notes
+    -----
+    A rotation common to all orientations is exactly a change of the
+    detector angles for every single pattern; only the PC field's
+    dependence on the angles across the map (weak: it grows with the
+    field of view) and a belief about the starting orientations
+    (*orientation_prior*) separate them. A parameter whose standard error
+    exceeds :data:`DETERMINACY_LIMITS` is therefore not moved by the joint
+    solver: it keeps its start value and the result lists it in
+    :attr:`~GeometryRefinementResult.undetermined`, with its standard
+    error.
+
+    Examples
+    --------
+    >>> from kikuchipy_geomdic import synthetic, refine_geometry_dic
+    >>> sm = synthetic.synthetic_map("Si", (5, 5), shape=(60, 60), seed=0)
+    >>> res = refine_geometry_dic(
+    ...     sm.signal, sm.start_xmap, sm.start_detector, sm.master_pattern, 20,
+    ...     parameters=["pcx", "pcy", "pcz"], points=25, show_progressbar=False,
+    ... )
+    >>> res.detector.navigation_shape
+    (5, 5)
+    >>> abs(res.parameters["pcx"] - sm.geometry.pc[0]) < 3e-4
+    True
+    """
+    if show_progressbar is None:
+        show_progressbar = True
+    names = check_parameters(parameters)
+    if solver not in SOLVERS:
+        raise ValueError(f"solver must be one of {SOLVERS}, not {solver!r}")
+    if jacobian not in _JACOBIANS:
+        raise ValueError(f"jacobian must be one of {_JACOBIANS}, not {jacobian!r}")
+    if orientation_prior is not None and not (
+        np.isfinite(orientation_prior) and orientation_prior > 0
+    ):
+        raise ValueError(
+            f"orientation_prior must be a positive RMS angle in degrees or None, "
+            f"not {orientation_prior}"
+        )
+    nav = _navigation_shape(signal)
+    phase_id = _check_inputs(signal, xmap, detector, master_pattern, phase, nav)
+    step_all = dict(DEFAULT_STEPS)
+    if steps:
+        check_parameters(list(steps))
+        step_all.update({k: float(v) for k, v in steps.items()})
+    if any(step_all[n] <= 0 for n in names):
+        raise ValueError("Finite-difference steps must be positive")
+    ref_kw = dict(refine_kwargs or {})
+    ops = pseudo_symmetry_ops
+    if ops is None:
+        ops = ref_kw.pop("pseudo_symmetry_ops", None)
+    ref_kw.pop("pseudo_symmetry_ops", None)
+
+    pts = _points(points, usable_points(xmap, phase_id).reshape(nav), nav)
+    n_free = len(_solved_parameters(names)[0])
+    if len(pts) < max(n_free, 2):
+        raise ValueError(
+            f"{len(pts)} usable calibration point(s) for {n_free} independent "
+            "parameter(s): at least as many points as parameters (and 2) are needed"
+        )
+
+    exp = _experimental(signal, pts, nav)
+    geometry0 = MapGeometry.from_detector(detector, _step_sizes(signal), nav)
+    flat = pts[:, 0] * nav[1] + pts[:, 1]
+    lookup = np.full(nav[0] * nav[1], -1)
+    lookup[xmap.id] = np.arange(xmap.size)
+    start_rot = Rotation(xmap.rotations.data[lookup[flat]])
+
+    dic_kw = dict(rois=tuple(rois), binning=binning, dic=dic, seed=seed)
+    dic_kw.update(dic_kwargs or {})
+    problem = _Problem(
+        experimental=exp,
+        points=pts,
+        start_rotations=start_rot,
+        master_pattern=master_pattern,
+        energy=float(energy),
+        # The master pattern's phase, checked above to match xmap's:
+        # kikuchipy refuses phases whose atom lists differ in order (as
+        # after a round trip through an h5ebsd file)
+        phase=master_pattern.phase.deepcopy(),
+        parameters=names,
+        steps={n: step_all[n] for n in names},
+        dic_kwargs=dic_kw,
+        refine_kwargs=ref_kw,
+        pseudo_symmetry_ops=None if ops is None else Rotation(ops).flatten(),
+    )
+    say = print if show_progressbar else (lambda *a, **k: None)
+    say(
+        f"Refining the geometry ({solver} solver) with {len(pts)} calibration points: "
+        f"{', '.join(names)}"
+    )
+    if solver == "joint":
+        state, history, converged, field_before, fixed = _joint_loop(
+            problem, geometry0, start_rot, orientation_prior,
+            0.0 if damping is None else damping, max_iterations, say,
+        )
+        geometry = state["geometry"]
+        final_rot = state["rotations"]
+        if refine_kwargs is not None:
+            final_rot, final_scores = problem.refine_orientations(geometry, final_rot, binning=1)
+        else:
+            final_scores = problem.ncc(geometry, final_rot)
+    else:
+        state, history, converged, field_before, fixed = _paper_loop(
+            problem, geometry0, start_rot, jacobian, 1e-3 if damping is None else damping,
+            max_iterations, ncc_tolerance, say,
+        )
+        geometry = state["geometry"]
+        final_rot, final_scores = state["rotations"], state["scores"]
+        if problem.loop_binning > 1:
+            final_rot, final_scores = problem.refine_orientations(geometry, final_rot, binning=1)
+    return _result(
+        problem, detector, signal, nav, geometry0, geometry, final_rot, final_scores, state,
+        history, converged, field_before, fixed, orientation_prior, solver,
+    )
+
+
+def _points(points, usable: np.ndarray, nav: tuple[int, int]) -> np.ndarray:
+    if np.ndim(points) == 0:
+        return calibration_points(nav, int(points), usable)
+    pts = np.asarray(points)
+    if pts.ndim != 2 or pts.shape[1] != 2 or not np.issubdtype(pts.dtype, np.integer):
+        raise ValueError("points must be an int or an (N, 2) integer array of (row, col)")
+    outside = (pts < 0).any(axis=1) | (pts[:, 0] >= nav[0]) | (pts[:, 1] >= nav[1])
+    if outside.any():
+        raise ValueError(
+            f"{outside.sum()} point(s) lie outside the map of shape {nav}, e.g. "
+            f"{pts[outside][0].tolist()}"
+        )
+    bad = ~usable[pts[:, 0], pts[:, 1]]
+    if bad.any():
+        raise ValueError(
+            f"{bad.sum()} point(s) are not indexed with the chosen phase, e.g. "
+            f"{pts[bad][0].tolist()}"
+        )
+    return pts
+
+
+def _standard_errors(problem, state, prior) -> dict[str, float]:
+    """Standard errors of every refined parameter at the final state, and
+    of the determined tilt difference, from one joint solve."""
+    names = problem.parameters
+    solved, split = _solved_parameters(names)
+    prior_rad = None if prior is None else np.deg2rad(prior) / np.sqrt(3)
+    _, dq = problem.variants(state["rotations"])
+    update, _ = _joint_solve(
+        problem, state["geometry"], state["field"], _rotvec(dq), solved, prior_rad, 0.0
+    )
+    se = dict(zip(solved, map(float, update.standard_errors)))
+    if "tilt" in names or "sample_tilt" in names:
+        base = "tilt" if "tilt" in solved else "sample_tilt"
+        se[TILT_DIFFERENCE] = se[base]
+    for name, base in split.items():
+        # Only their difference is determined
+        se[name] = se[base] = float("inf")
+    return {k: se[k] for k in (*names, TILT_DIFFERENCE) if k in se}
+
+
+def _result(problem, detector, signal, nav, geometry0, geometry, final_rot, final_scores,
+            state, history, converged, field_before, fixed, prior, solver):
+    names, pts = problem.parameters, problem.points
     xmap_out = CrystalMap(
         rotations=final_rot,
         x=np.arange(len(pts), dtype=float),
@@ -711,17 +1174,25 @@ def refine_geometry_dic(
             "row": pts[:, 0],
             "col": pts[:, 1],
             "pseudo_symmetry_index": problem.variants(final_rot)[0],
+            # A pattern far above the others failed (e.g. a wrong start)
+            "dic_rms": np.sqrt(
+                (state["field"].counts * (state["field"].u ** 2).sum(axis=-1)).sum(axis=1)
+                / np.maximum(state["field"].counts.sum(axis=1), 1)
+            ),
         },
     )
     det = geometry.detector()
     if len(detector.navigation_shape) == 2 or nav[0] > 1:
-        det.pc = det.pc.reshape(
-            signal.axes_manager.navigation_shape[::-1] + (3,)
-        )
+        det.pc = det.pc.reshape(signal.axes_manager.navigation_shape[::-1] + (3,))
+    field_after = state["field"]
+    # Diagnostics of the average field, the paper's view of the map
+    jac = analytic_jacobian(
+        geometry, pts, field_after.positions, field_after.counts, names, problem.steps
+    )
+    update = solve_update(jac, field_after.residual, field_after.weights, 0.0)
     degenerate = [
-        {n: float(c) for n, c in zip(names, v) if abs(c) > 1e-6}
-        for v in update.null_space.T
-    ] if update is not None else []
+        {n: float(c) for n, c in zip(names, v) if abs(c) > 1e-6} for v in update.null_space.T
+    ]
     return GeometryRefinementResult(
         detector=det,
         geometry=geometry,
@@ -730,13 +1201,16 @@ def refine_geometry_dic(
         points=pts,
         parameter_names=names,
         parameters=dict(zip(names, map(float, geometry.values(names)))),
+        standard_errors=_standard_errors(problem, state, prior),
+        undetermined=tuple(fixed),
+        solver=solver,
         history=history,
         jacobian=jac,
-        coupling=coupling_matrix(jac, state["field"].weights),
-        singular_values=update.singular_values if update is not None else np.array([]),
+        coupling=coupling_matrix(jac, field_after.weights),
+        singular_values=update.singular_values,
         degenerate=degenerate,
         field_before=field_before,
-        field_after=state["field"],
+        field_after=field_after,
         converged=converged,
         steps=problem.steps,
     )

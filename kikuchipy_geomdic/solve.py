@@ -1,8 +1,19 @@
-"""The linear solve of one geometry update (paper section 2.4, Eqs. 7-11).
+"""The linear solves of one geometry update.
 
-Plain arrays in and out: a Jacobian ``J`` (2R x K, pixels per parameter
-unit), the residual field ``b`` (2R) and the ROI weights (R), in the order
-of :mod:`kikuchipy_geomdic.displacement`.
+Two solvers, plain arrays in and out:
+
+- :func:`solve_update`, the paper's (section 2.4, Eqs. 7-11): the
+  *average* field ``b`` (2R) against a Jacobian ``J`` (2R x K, pixels per
+  parameter unit) with the ROI weights (R), in the order of
+  :mod:`kikuchipy_geomdic.displacement`.
+- :func:`solve_joint`: every pattern's own field against the geometry
+  *and* one small rotation per pattern, the rotations eliminated exactly
+  (Schur complement). Averaging the fields first, as the paper does,
+  attributes to the geometry whatever part of each pattern's field an
+  orientation error explains (a PC shift is almost a rotation), and
+  orientations indexed at a wrong geometry share such an error; the joint
+  solve does not average, so it does not need the orientation errors to
+  cancel.
 
 Exact degeneracies
 ------------------
@@ -27,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Update", "solve_update", "coupling_matrix"]
+__all__ = ["Update", "JointUpdate", "solve_update", "solve_joint", "coupling_matrix"]
 
 
 @dataclass(frozen=True)
@@ -188,3 +199,228 @@ def coupling_matrix(jacobian: np.ndarray, weights: np.ndarray | None = None) -> 
     n = np.where(n > 0, n, 1.0)
     jn = j / n
     return jn.T @ jn
+
+
+@dataclass(frozen=True)
+class JointUpdate:
+    """The result of one joint solve (:func:`solve_joint`).
+
+    Attributes
+    ----------
+    delta
+        Geometry update (K,), in parameter units.
+    rotations
+        Rotation updates (N, 3) in radians: rotation vectors of the right
+        factor ``T`` of each orientation, ``g -> g * T``.
+    covariance
+        Covariance (K, K) of *delta* in parameter units: the inverse of
+        the reduced normal matrix (rotations eliminated, prior included)
+        times the variance factor. Pseudo-inverse when degenerate.
+    null_space
+        (K, d) unit directions, in parameter units, that the data do not
+        constrain at all (e.g. tilt against sample_tilt).
+    rotation_sigma
+        Standard errors (N, 3) of the rotation updates, radians.
+    variance_factor
+        Weighted residual sum of squares of the fit over its degrees of
+        freedom: 1 when *weights* are true inverse variances.
+    chi2
+        Weighted residual sum of squares before the update (data only).
+    predicted_chi2
+        The same predicted after the update (data only).
+    dof
+        Degrees of freedom: measured components minus unknowns.
+    reduced_norms, full_norms
+        Square roots of the diagonals of the geometry normal matrix with
+        the rotations eliminated and without: their ratio says how much
+        of a parameter's signature survives once every orientation may
+        move (small for the detector angles).
+    """
+
+    delta: np.ndarray
+    rotations: np.ndarray
+    covariance: np.ndarray
+    null_space: np.ndarray
+    rotation_sigma: np.ndarray
+    variance_factor: float
+    chi2: float
+    predicted_chi2: float
+    dof: int
+    reduced_norms: np.ndarray
+    full_norms: np.ndarray
+
+    @property
+    def standard_errors(self) -> np.ndarray:
+        """Standard errors (K,) of *delta*; inf for parameters with a
+        component in :attr:`null_space`."""
+        se = np.sqrt(np.clip(np.diag(self.covariance), 0, None))
+        if self.null_space.size:
+            se = np.where(np.abs(self.null_space).max(axis=1) > 1e-9, np.inf, se)
+        return se
+
+    def standard_error(self, coefficients: np.ndarray) -> float:
+        """Standard error of a linear combination ``c . delta``; inf if
+        the combination is not determined."""
+        c = np.asarray(coefficients, dtype=np.float64)
+        if self.null_space.size and np.abs(c @ self.null_space).max() > 1e-9 * np.linalg.norm(c):
+            return float("inf")
+        return float(np.sqrt(max(c @ self.covariance @ c, 0.0)))
+
+
+def solve_joint(
+    j_geo: np.ndarray,
+    j_rot: np.ndarray,
+    residual: np.ndarray,
+    weights: np.ndarray,
+    prior: float | None = None,
+    offsets: np.ndarray | None = None,
+    damping: float = 0.0,
+    rtol: float = 1e-10,
+) -> JointUpdate:
+    r"""Return the geometry and per-pattern rotation updates, solved jointly.
+
+    Minimises, over the geometry change :math:`\Delta p` and a rotation
+    :math:`\delta\omega_i` per pattern,
+
+    .. math::
+
+        \sum_i \|W_i^{1/2}(b_i + J_{geo,i}\Delta p + J_{rot,i}\delta\omega_i)\|^2
+        + \sum_i \|\omega_i + \delta\omega_i\|^2 / \sigma_\omega^2
+
+    (the second sum only with a *prior*). Each :math:`\delta\omega_i`
+    is eliminated exactly, a 3 x 3 solve per pattern (Schur complement);
+    the reduced K x K system gives :math:`\Delta p`, damped as
+    Levenberg-Marquardt; back-substitution gives the rotations.
+
+    Parameters
+    ----------
+    j_geo
+        Per-pattern geometry Jacobians (N, M, K): M measured components
+        per pattern (2 per ROI), pixels per parameter unit.
+    j_rot
+        Per-pattern rotation Jacobians (N, M, 3), pixels per radian.
+    residual
+        Per-pattern measured displacements :math:`b_i` (N, M).
+    weights
+        Inverse variances (N, M) of the components, 0 where nothing was
+        measured.
+    prior
+        :math:`\sigma_\omega`, the standard deviation in radians of each
+        component of the orientation errors *offsets* plus the updates:
+        the belief that the starting orientations are free of a common
+        error. None: no prior; a rotation common to all patterns is then
+        seen only through what it cannot mimic.
+    offsets
+        :math:`\omega_i` (N, 3): each orientation's current rotation away
+        from its start, radians. Default zero.
+    damping
+        :math:`\lambda`: the reduced normal matrix :math:`S` becomes
+        :math:`S + \lambda\,\mathrm{diag}(C)`, with :math:`C` the geometry
+        normal matrix before elimination (Marquardt's scaling, on the
+        parameters' full sensitivity).
+    rtol
+        Directions whose reduced curvature, relative to the full
+        sensitivity, is below this are taken as exactly undetermined and
+        get no update (minimum norm), as in :func:`solve_update`.
+
+    Returns
+    -------
+    update
+        :class:`JointUpdate`.
+
+    Examples
+    --------
+    Two patterns, one parameter, each pattern also rotated:
+
+    >>> import numpy as np
+    >>> from kikuchipy_geomdic.solve import solve_joint
+    >>> rng = np.random.default_rng(0)
+    >>> jg = rng.normal(size=(2, 8, 1))
+    >>> jr = rng.normal(size=(2, 8, 3))
+    >>> w_true = np.array([[0.1, 0, 0], [0, -0.2, 0.05]])
+    >>> b = -(jg[..., 0] * 0.3 + np.einsum("nmk,nk->nm", jr, w_true))
+    >>> u = solve_joint(jg, jr, b, np.ones((2, 8)))
+    >>> np.round(u.delta, 9).tolist(), np.round(u.rotations, 9).tolist()
+    ([0.3], [[0.1, 0.0, 0.0], [0.0, -0.2, 0.05]])
+    """
+    jg = np.asarray(j_geo, dtype=np.float64)
+    jr = np.asarray(j_rot, dtype=np.float64)
+    b = np.asarray(residual, dtype=np.float64)
+    w = np.asarray(weights, dtype=np.float64)
+    if jg.ndim != 3 or jr.shape != jg.shape[:2] + (3,) or b.shape != jg.shape[:2]:
+        raise ValueError(
+            f"Shapes do not match: j_geo {jg.shape} (N, M, K), j_rot {jr.shape} "
+            f"(N, M, 3), residual {b.shape} (N, M)"
+        )
+    if w.shape != b.shape:
+        raise ValueError(f"weights {w.shape} differ from residual {b.shape}")
+    if not all(np.isfinite(a).all() for a in (jg, jr, b, w)) or (w < 0).any():
+        raise ValueError("Jacobians, residual and weights must be finite, weights >= 0")
+    n, _, k = jg.shape
+    p = 0.0 if prior is None else 1.0 / float(prior) ** 2
+    if prior is not None and not (np.isfinite(p) and prior > 0):
+        raise ValueError(f"prior must be a positive standard deviation, not {prior}")
+    w0 = np.zeros((n, 3)) if offsets is None else np.asarray(offsets, dtype=np.float64)
+
+    jgw = jg * w[..., None]
+    jrw = jr * w[..., None]
+    a = np.einsum("nmi,nmj->nij", jrw, jr) + p * np.eye(3)
+    bb = np.einsum("nmi,nmj->nij", jrw, jg)
+    c = np.einsum("nmi,nmj->nij", jgw, jg)
+    ar = np.einsum("nmi,nm->ni", jrw, b) + p * w0
+    ag = np.einsum("nmi,nm->ni", jgw, b)
+    # Patterns without vectors and no prior have a singular 3 x 3 block;
+    # the pseudo-inverse gives them no rotation and no say in the geometry
+    a_inv = np.linalg.pinv(a, hermitian=True)
+    a_inv_b = a_inv @ bb
+    a_inv_r = np.einsum("nij,nj->ni", a_inv, ar)
+    s_red = (c - np.einsum("nki,nkj->nij", bb, a_inv_b)).sum(axis=0)
+    g_red = (ag - np.einsum("nki,nk->ni", bb, a_inv_r)).sum(axis=0)
+    c_all = c.sum(axis=0)
+    full = np.sqrt(np.clip(np.diag(c_all), 0, None))
+    if np.any(full == 0):
+        raise ValueError(
+            f"Jacobian column(s) {np.flatnonzero(full == 0).tolist()} are zero after "
+            "weighting: those parameters have no measurable effect"
+        )
+    # Scaled by the full sensitivities, the reduced matrix is
+    # dimensionless; its eigenvalues say how much of each signature
+    # survives the elimination of the rotations
+    s_scaled = s_red / np.outer(full, full)
+    s_scaled = (s_scaled + s_scaled.T) / 2
+    mu, v = np.linalg.eigh(s_scaled)
+    keep = mu > rtol * max(mu.max(), 1.0)
+    g_scaled = g_red / full
+    coef = np.zeros_like(mu)
+    coef[keep] = 1.0 / (mu[keep] + damping)
+    delta = -(v @ (coef * (v.T @ g_scaled))) / full
+    cov_scaled = (v[:, keep] / mu[keep]) @ v[:, keep].T
+    null = v[:, ~keep] / full[:, None]
+    if null.size:
+        null = null / np.linalg.norm(null, axis=0)
+    dw = -(a_inv_r + a_inv_b @ delta)
+
+    r_after = b + jg @ delta + np.einsum("nmk,nk->nm", jr, dw)
+    chi2 = float((w * b**2).sum())
+    chi2_after = float((w * r_after**2).sum())
+    n_obs = int((w > 0).sum())
+    n_rot = int((np.linalg.matrix_rank(a, hermitian=True)).sum())
+    dof = max(n_obs - n_rot - int(keep.sum()), 1)
+    factor = chi2_after / dof
+    cov = factor * cov_scaled / np.outer(full, full)
+    # Rotation errors given the geometry (the geometry's own error adds a
+    # common part, see covariance)
+    rot_sigma = np.sqrt(factor * np.clip(np.diagonal(a_inv, axis1=1, axis2=2), 0, None))
+    return JointUpdate(
+        delta=delta,
+        rotations=dw,
+        covariance=cov,
+        null_space=null,
+        rotation_sigma=rot_sigma,
+        variance_factor=factor,
+        chi2=chi2,
+        predicted_chi2=chi2_after,
+        dof=dof,
+        reduced_norms=np.sqrt(np.clip(np.diag(s_red), 0, None)),
+        full_norms=full,
+    )

@@ -2,23 +2,51 @@
 
 Ground truth is this package's main instrument: a map simulated here comes
 with its true geometry and orientations, a perturbed starting geometry and
-perturbed starting orientations, so that any calibration can be scored.
+starting orientations made by one of three start models (the paper's
+centred scatter, an uncentred scatter, or orientations refined at the
+wrong geometry as a user would have them after indexing; see
+:func:`synthetic_map` and :func:`common_rotation`), so that any
+calibration can be scored.
 
 Master patterns
 ---------------
 :func:`master_pattern` returns a Lambert master pattern (both hemispheres)
-for silicon, tetragonal BaTiO3 or any orix :class:`~orix.crystal_map.Phase`:
-dynamical for Si and BaTiO3 from the package data (computed with ebsdsim
-0.2.4, MIT, energy bins summed with their weights), or kinematical, built
-here with diffsims/kikuchipy for any phase.
-"""
+for silicon, tetragonal BaTiO3, nickel or any orix
+:class:`~orix.crystal_map.Phase`: dynamical for Si, BaTiO3 and Ni from the
+package data, or kinematical, built here with diffsims/kikuchipy for any
+phase. For nickel there is a second, independent dynamical master pattern
+(``kind="emsoft"``), so that "experimental" patterns can be simulated with
+one simulator and calibrated with another.
 
+Data and credits
+----------------
+- ``data/Si_dynamical.npz``, ``data/BaTiO3_dynamical.npz`` and
+  ``data/Ni_dynamical.npz``: computed with ebsdsim 0.2.4 (MIT licence),
+  20 kV, sample tilt 70 deg, Lambert 201 x 201 (BaTiO3 129 x 129). Each is
+  ebsdsim's per-energy-bin master pattern read with
+  ``kikuchipy.load(path, hemisphere="both")`` and averaged over the energy
+  bins with ebsdsim's ``bin_weights`` (``np.average`` in float64, stored
+  as float32); the npz keeps the CIF the simulation used. Ni was computed
+  from ebsdsim's preset ``Ni.cif`` (a = 3.4751 angstrom, 1.4 % below
+  nickel's 3.524 angstrom, so its bands are about 1.4 % wider than real
+  Ni's), while the phase attached to it, :func:`phase` "Ni" from
+  ``data/Ni.cif``, has a = 3.524 angstrom.
+- ``kind="emsoft"``: kikuchipy's shipped EMsoft Ni master pattern
+  (``kikuchipy.data.nickel_ebsd_master_pattern_small``, 20 kV, 401 x 401,
+  uint8; simulated with EMsoft, Callahan and De Graef, Microsc.
+  Microanal. 19 (2013) 1255; data set under CC BY 4.0, shipped with
+  kikuchipy), read offline from the kikuchipy installation, not copied
+  into this package.
+"""
 from __future__ import annotations
 
+import contextlib
 import functools
+import io
+from collections.abc import Mapping
 from dataclasses import dataclass
 from importlib import resources
-from typing import Mapping
+from typing import NamedTuple
 
 import dask.array as da
 import numpy as np
@@ -37,6 +65,10 @@ __all__ = [
     "variant_operators",
     "VARIANT_NAMES",
     "perturb_rotations",
+    "rotation_vectors",
+    "CommonRotation",
+    "common_rotation",
+    "START_MODELS",
     "default_geometry",
     "DEFAULT_PERTURBATION",
     "SyntheticMap",
@@ -45,7 +77,14 @@ __all__ = [
 ]
 
 _DATA = resources.files("kikuchipy_geomdic") / "data"
-_PHASES = {"si": "Si", "silicon": "Si", "batio3": "BaTiO3", "bto": "BaTiO3"}
+_PHASES = {
+    "si": "Si",
+    "silicon": "Si",
+    "batio3": "BaTiO3",
+    "bto": "BaTiO3",
+    "ni": "Ni",
+    "nickel": "Ni",
+}
 
 
 def _phase_key(name: str) -> str:
@@ -53,17 +92,17 @@ def _phase_key(name: str) -> str:
         return _PHASES[name.lower()]
     except KeyError:
         raise ValueError(
-            f"Unknown phase {name!r}: use 'Si', 'BaTiO3' or pass an orix Phase"
+            f"Unknown phase {name!r}: use 'Si', 'BaTiO3', 'Ni' or pass an orix Phase"
         ) from None
 
 
 def phase(name: str) -> Phase:
-    """Return the orix phase of silicon or tetragonal BaTiO3.
+    """Return the orix phase of silicon, tetragonal BaTiO3 or nickel.
 
     Parameters
     ----------
     name
-        "Si" or "BaTiO3" (case-insensitive).
+        "Si", "BaTiO3" or "Ni" (case-insensitive).
 
     Returns
     -------
@@ -76,6 +115,9 @@ def phase(name: str) -> Phase:
     >>> from kikuchipy_geomdic.synthetic import phase
     >>> phase("BaTiO3").point_group.name
     '4mm'
+    >>> p = phase("Ni")
+    >>> p.point_group.name, p.structure.lattice.a
+    ('m-3m', 3.524)
     """
     key = _phase_key(name)
     with resources.as_file(_DATA / f"{key}.cif") as path:
@@ -96,13 +138,18 @@ def master_pattern(
     Parameters
     ----------
     phase_or_name
-        "Si", "BaTiO3" or an orix phase (lattice parameters in angstrom).
+        "Si", "BaTiO3", "Ni" or an orix phase (lattice parameters in
+        angstrom).
     kind
-        "dynamical" (package data, Si and BaTiO3 at 20 kV only),
-        "kinematical" (any phase, any energy), or "auto": dynamical where
-        available, else kinematical.
+        "dynamical" (package data computed with ebsdsim: Si, BaTiO3 and
+        Ni at 20 kV only), "emsoft" (Ni only: kikuchipy's shipped EMsoft
+        master pattern, 20 kV, 401 x 401, to simulate "experimental"
+        patterns with another simulator than the one used to calibrate),
+        "kinematical" (any phase, any energy), or "auto": dynamical
+        (ebsdsim) where available, else kinematical.
     energy
-        Beam energy in kV (kinematical only; dynamical ones are 20 kV).
+        Beam energy in kV (kinematical only; dynamical and EMsoft ones
+        are 20 kV).
     half_size
         Half the side of the kinematical master pattern in pixels.
     min_dspacing
@@ -114,7 +161,10 @@ def master_pattern(
     master_pattern
         :class:`~kikuchipy.signals.EBSDMasterPattern`, Lambert projection,
         hemisphere "both", float32. ``metadata.General.title`` says which
-        kind it is.
+        kind it is. Its phase is :func:`phase` of the name (lattice in
+        angstrom), also for the EMsoft Ni pattern (kikuchipy's phase of
+        it is in nm), so that crystal maps simulated from one Ni master
+        pattern can be refined with kikuchipy against the other.
 
     Examples
     --------
@@ -122,14 +172,27 @@ def master_pattern(
     >>> mp = master_pattern("Si")
     >>> mp.projection, mp.hemisphere, mp.metadata.General.title
     ('lambert', 'both', 'Si dynamical (ebsdsim 0.2.4)')
+    >>> master_pattern("Ni", kind="emsoft").metadata.General.title
+    'Ni dynamical (EMsoft, kikuchipy data)'
     """
-    if kind not in ("auto", "dynamical", "kinematical"):
-        raise ValueError(f"kind must be 'auto', 'dynamical' or 'kinematical', not {kind!r}")
+    if kind not in ("auto", "dynamical", "kinematical", "emsoft"):
+        raise ValueError(
+            f"kind must be 'auto', 'dynamical', 'kinematical' or 'emsoft', not {kind!r}"
+        )
     if isinstance(phase_or_name, Phase):
-        if kind == "dynamical":
-            raise ValueError("Dynamical master patterns exist only for 'Si' and 'BaTiO3'")
+        if kind in ("dynamical", "emsoft"):
+            raise ValueError(
+                "Dynamical master patterns exist only for 'Si', 'BaTiO3' and 'Ni' "
+                "(EMsoft: 'Ni')"
+            )
         return _kinematical(phase_or_name, energy, half_size, min_dspacing).deepcopy()
     key = _phase_key(phase_or_name)
+    if kind == "emsoft":
+        if key != "Ni":
+            raise ValueError(f"The EMsoft master pattern is for 'Ni' only, not {key!r}")
+        if energy != 20:
+            raise ValueError("The EMsoft Ni master pattern is for 20 kV")
+        return _emsoft_ni().deepcopy()
     if kind == "kinematical":
         return _kinematical_named(key, energy, half_size, min_dspacing).deepcopy()
     if energy != 20:
@@ -176,8 +239,10 @@ def _random_rotations(n: int, rng: np.random.Generator) -> Rotation:
     return Rotation(q)
 
 
-def perturb_rotations(rotations: Rotation, scatter: float, rng) -> Rotation:
-    """Return rotations times small random rotations of zero mean.
+def perturb_rotations(
+    rotations: Rotation, scatter: float, rng, centred: bool = True
+) -> Rotation:
+    """Return rotations times small random rotations.
 
     Parameters
     ----------
@@ -187,27 +252,160 @@ def perturb_rotations(rotations: Rotation, scatter: float, rng) -> Rotation:
         RMS misorientation angle in degrees. Each rotation is multiplied
         (on the right, in the sample frame) by a rotation whose rotation
         vector has normal components of standard deviation
-        ``scatter / sqrt(3)``, centred so that their mean is exactly zero:
-        a common rotation of all orientations is indistinguishable from a
-        change of the detector angles, so a random common part would be
-        a bias of size ``scatter / sqrt(n)`` no calibration could remove.
+        ``scatter / sqrt(3)``.
     rng
         :class:`numpy.random.Generator` or a seed.
+    centred
+        Subtract the mean rotation vector so that the perturbations have
+        exactly zero mean (the paper's perturbation study). A common
+        rotation of all orientations is indistinguishable from a change
+        of the detector angles, so the random common part of uncentred
+        perturbations (of size ``scatter / sqrt(n)``, see
+        :func:`common_rotation`) is a bias no calibration can remove.
+        The same *rng* state draws the same numbers either way: only the
+        centring differs.
 
     Returns
     -------
     perturbed
         Flat :class:`~orix.quaternion.Rotation`.
+
+    Examples
+    --------
+    >>> from orix.quaternion import Rotation
+    >>> from kikuchipy_geomdic.synthetic import common_rotation, perturb_rotations
+    >>> truth = Rotation.identity(100)
+    >>> angle, _ = common_rotation(perturb_rotations(truth, 0.3, 0), truth)
+    >>> bool(angle < 1e-12)
+    True
+    >>> angle, _ = common_rotation(perturb_rotations(truth, 0.3, 0, centred=False), truth)
+    >>> bool(0.005 < angle < 0.1)
+    True
     """
     rng = np.random.default_rng(rng)
     rotations = rotations.flatten()
     v = rng.normal(scale=np.deg2rad(scatter) / np.sqrt(3), size=(rotations.size, 3))
-    if rotations.size > 1:
+    if centred and rotations.size > 1:
         v -= v.mean(axis=0)
     angle = np.linalg.norm(v, axis=1)
     safe = np.where(angle > 0, angle, 1.0)[:, None]
     axis = np.where(angle[:, None] > 0, v / safe, [0.0, 0.0, 1.0])
     return rotations * Rotation.from_axes_angles(axis, angle)
+
+
+class CommonRotation(NamedTuple):
+    """Mean deviation of starting orientations from the truth.
+
+    Attributes
+    ----------
+    angle
+        Angle in degrees of the mean rotation vector.
+    axis
+        Unit axis (3,) in the sample frame; ``[0, 0, 1]`` when *angle*
+        is 0.
+    """
+
+    angle: float
+    axis: np.ndarray
+
+    @property
+    def vector(self) -> np.ndarray:
+        """The mean rotation vector (3,) in degrees."""
+        return self.angle * self.axis
+
+
+def _rotations_of(r) -> Rotation:
+    if isinstance(r, CrystalMap):
+        return r.rotations.flatten()
+    return Rotation(r).flatten()
+
+
+def rotation_vectors(rotations: Rotation) -> np.ndarray:
+    """Return rotation vectors (angle times axis) in radians.
+
+    Parameters
+    ----------
+    rotations
+        Rotations (any shape; flattened). ``q`` and ``-q`` give the same
+        vector, of length at most pi.
+
+    Returns
+    -------
+    vectors
+        Array (n, 3), accurate also for tiny angles.
+    """
+    q = np.asarray(Rotation(rotations).flatten().data, dtype=float)
+    q = np.where(q[:, :1] < 0, -q, q)
+    n = np.linalg.norm(q[:, 1:], axis=1)
+    angle = 2 * np.arctan2(n, q[:, 0])
+    factor = np.where(n > 0, angle / np.where(n > 0, n, 1.0), 2.0)
+    return q[:, 1:] * factor[:, None]
+
+
+def common_rotation(
+    start: Rotation | CrystalMap, truth: Rotation | CrystalMap, symmetry=None
+) -> CommonRotation:
+    """Return the common part of the deviations of *start* from *truth*.
+
+    The deviation of each orientation is the sample-frame rotation ``T``
+    with ``start = truth * T`` (orix's right factor, as in
+    :func:`perturb_rotations`), i.e. ``T = ~truth * start``. Its common
+    part is the mean of the rotation vectors of ``T`` over the map (for
+    deviations of a few degrees, the mean rotation up to terms of second
+    order in the angles). It is what no calibration can tell from a change of the
+    detector angles: zero for the "centred" start of
+    :func:`synthetic_map`, of order ``orientation_error / sqrt(n)`` for
+    "uncentred" and larger for "indexed", where the geometry error was
+    absorbed into the orientations.
+
+    Parameters
+    ----------
+    start, truth
+        Rotations or crystal maps of the same size (flattened; for crystal
+        maps, the points in the data).
+    symmetry
+        Optional orix :class:`~orix.quaternion.Symmetry` (e.g. the phase's
+        point group): each start is first replaced by the equivalent
+        ``op * start`` (crystal-frame operator, left factor) closest to its
+        truth. Not needed for starts within a few degrees of the truth.
+
+    Returns
+    -------
+    common
+        :class:`CommonRotation` ``(angle, axis)``, angle in degrees,
+        unpacks as a tuple; ``common.vector`` is the mean rotation vector
+        in degrees.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from orix.quaternion import Rotation
+    >>> from kikuchipy_geomdic.synthetic import common_rotation
+    >>> truth = Rotation.random(5)
+    >>> t = Rotation.from_axes_angles([0, 0, 1], np.deg2rad(0.5))
+    >>> angle, axis = common_rotation(truth * t, truth)
+    >>> round(angle, 6), np.round(axis, 6).tolist()
+    (0.5, [0.0, 0.0, 1.0])
+    """
+    s = _rotations_of(start)
+    t = _rotations_of(truth)
+    if s.size != t.size:
+        raise ValueError(f"start has {s.size} rotations, truth {t.size}")
+    dev = ~t * s
+    if symmetry is not None:
+        best = np.abs(dev.a)
+        q = dev.data.copy()
+        ops = getattr(symmetry, "proper_subgroup", symmetry)
+        for op in Rotation(ops).flatten():
+            cand = ~t * (op * s)
+            better = np.abs(cand.a) > best
+            best = np.where(better, np.abs(cand.a), best)
+            q[better] = cand.data[better]
+        dev = Rotation(q)
+    v = np.rad2deg(rotation_vectors(dev).mean(axis=0))
+    angle = float(np.linalg.norm(v))
+    axis = v / angle if angle > 0 else np.array([0.0, 0.0, 1.0])
+    return CommonRotation(angle, axis)
 
 
 def default_geometry(
@@ -284,12 +482,15 @@ class SyntheticMap:
         The truth: geometry, detector with the PC of every map point, and
         orientations (property ``variant`` for BaTiO3 variant maps).
     start_geometry, start_detector, start_xmap
-        The starting point: perturbed geometry and orientations with a
-        zero-mean scatter about the truth.
+        The starting point: perturbed geometry and starting orientations
+        made by the start model *start*.
     master_pattern
         The master pattern the map was simulated from.
     energy
         Beam energy in kV.
+    start
+        Start model of the orientations, one of :data:`START_MODELS`
+        (see :func:`synthetic_map`).
     """
 
     signal: EBSD
@@ -301,6 +502,12 @@ class SyntheticMap:
     start_xmap: CrystalMap
     master_pattern: EBSDMasterPattern
     energy: float
+    start: str = "centred"
+
+
+#: Start models of :func:`synthetic_map`: how the starting orientations
+#: are made from the true ones.
+START_MODELS = ("centred", "uncentred", "indexed")
 
 
 def synthetic_map(
@@ -318,6 +525,7 @@ def synthetic_map(
     energy: float = 20.0,
     lazy: bool = False,
     seed: int = 0,
+    start: str = "centred",
 ) -> SyntheticMap:
     """Return a synthetic EBSD map with a known geometry and orientations.
 
@@ -345,8 +553,8 @@ def synthetic_map(
         default :data:`DEFAULT_PERTURBATION`. Pass ``{}`` to start at the
         truth.
     orientation_error
-        RMS angle in degrees of the error of the starting orientations,
-        zero-mean over the map (see :func:`perturb_rotations`).
+        RMS angle in degrees of the random error of the starting
+        orientations (see :func:`perturb_rotations` and *start*).
     dose
         Mean electron counts per pixel for Poisson shot noise; ``None``
         for no shot noise.
@@ -363,7 +571,30 @@ def synthetic_map(
         when computed (bounded memory for large maps).
     seed
         Seed of everything random: orientations, starting orientations
-        and noise. The same seed gives the same map.
+        and noise. The same seed gives the same map, and for every start
+        model the same truth, patterns and random draws.
+    start
+        How the starting orientations are made (:data:`START_MODELS`):
+
+        - "centred": the truth times a random scatter of RMS
+          *orientation_error* centred to exactly zero mean, the paper's
+          perturbation study. No common rotation, so no bias that looks
+          like a detector-angle error.
+        - "uncentred": the same random scatter, not centred: its mean is
+          random, of order ``orientation_error / sqrt(n)`` for *n*
+          points (see :func:`common_rotation`).
+        - "indexed": what a user has after indexing at the nominal
+          (wrong) geometry: the "uncentred" start refined point by point
+          with kikuchipy's ``EBSD.refine_orientation`` (default method,
+          SciPy Nelder-Mead, no trust region) against the map's own
+          patterns (noisy if *dose* is set) at the *starting* detector.
+          The geometry error is then absorbed into the orientations,
+          which share a common rotation much larger than
+          ``orientation_error / sqrt(n)``. Costs about 1.3 s for 7 x 7
+          patterns of 60 x 60 px and 7 s for 11 x 11 of 96 x 96 (2
+          cores, after numba's first compilation); with *lazy* the
+          patterns are simulated chunk by chunk during the refinement, in
+          bounded memory.
 
     Returns
     -------
@@ -394,6 +625,8 @@ def synthetic_map(
         )
     if perturbation is None:
         perturbation = DEFAULT_PERTURBATION
+    if start not in START_MODELS:
+        raise ValueError(f"start must be one of {START_MODELS}, not {start!r}")
     rng = np.random.default_rng(seed)
     n = nav[0] * nav[1]
     rows, cols = np.indices(nav)
@@ -413,7 +646,8 @@ def synthetic_map(
         raise ValueError(
             f"orientations must be 'single', 'random' or 'variants', not {orientations!r}"
         )
-    start_rot = perturb_rotations(rot, orientation_error, rng)
+    # "indexed" refines the "uncentred" start: same draws for all models
+    start_rot = perturb_rotations(rot, orientation_error, rng, centred=start == "centred")
     noise_seed = int(rng.integers(2**63))
 
     mp_phase = master_pattern.phase.deepcopy()
@@ -445,6 +679,11 @@ def synthetic_map(
         signal = LazyEBSD(data, axes=axes)
     else:
         signal = EBSD(data.compute(scheduler="threads"), axes=axes)
+    if start == "indexed":
+        start_rot = _refine_orientations(
+            signal, start_xmap, start_detector, master_pattern, energy
+        )
+        start_xmap = _crystal_map(start_rot, nav, (dy, dx), mp_phase, prop)
     signal.detector = start_detector.deepcopy()
     signal.xmap = start_xmap.deepcopy()
     signal.metadata.General.title = f"synthetic {master_pattern.phase.name} map"
@@ -458,7 +697,20 @@ def synthetic_map(
         start_xmap=start_xmap,
         master_pattern=master_pattern,
         energy=float(energy),
+        start=start,
     )
+
+
+def _refine_orientations(signal, xmap, detector, master_pattern, energy) -> Rotation:
+    # kikuchipy's orientation refinement at fixed (per-point) PCs, as a
+    # user would run it after indexing at the nominal geometry: default
+    # method (SciPy Nelder-Mead) and no trust region, which can stall on
+    # small Euler angles (field notes). It builds a dask graph over the
+    # signal's chunks (lazy signals are simulated chunk by chunk) and
+    # prints a summary and a progress bar to stdout
+    with contextlib.redirect_stdout(io.StringIO()):
+        refined = signal.refine_orientation(xmap, detector, master_pattern, energy)
+    return refined.rotations.flatten()
 
 
 def _domains(nav: tuple[int, int]) -> np.ndarray:
@@ -588,6 +840,22 @@ def _dynamical(key: str) -> EBSDMasterPattern:
         data, axes=axes, projection="lambert", hemisphere="both", phase=phase(key)
     )
     mp.metadata.General.title = f"{key} dynamical (ebsdsim 0.2.4)"
+    return mp
+
+
+@functools.lru_cache(maxsize=1)
+def _emsoft_ni() -> EBSDMasterPattern:
+    import kikuchipy as kp
+
+    # Shipped in the kikuchipy wheel (offline): EMsoft, 20 kV, 401 x 401,
+    # uint8. kikuchipy's phase has its lattice in nm; give it the
+    # package's Ni phase (angstrom) so that kikuchipy, which requires
+    # identical phases, refines maps simulated from it with the ebsdsim
+    # Ni master pattern and vice versa
+    mp = kp.data.nickel_ebsd_master_pattern_small(projection="lambert", hemisphere="both")
+    mp.data = mp.data.astype(np.float32)
+    mp.phase = phase("Ni")
+    mp.metadata.General.title = "Ni dynamical (EMsoft, kikuchipy data)"
     return mp
 
 

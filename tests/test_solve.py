@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from kikuchipy_geomdic.solve import coupling_matrix, solve_update
+from kikuchipy_geomdic.solve import coupling_matrix, solve_joint, solve_update
 
 
 def _problem(seed=0, r=32, k=4):
@@ -89,3 +89,88 @@ def test_coupling_matrix():
     assert np.allclose(c, c.T)
     assert np.isclose(c[0, 2], -1)
     assert np.isclose(c[0, 1], 0.5)
+
+
+class TestJoint:
+    """solve_joint against a dense least-squares solve of the same system."""
+
+    @staticmethod
+    def _system(n=6, m=10, k=3, seed=0):
+        rng = np.random.default_rng(seed)
+        jg = rng.normal(size=(n, m, k))
+        jr = rng.normal(size=(n, m, 3))
+        w = rng.uniform(0.5, 2, size=(n, m))
+        b = rng.normal(size=(n, m))
+        return jg, jr, b, w
+
+    @staticmethod
+    def _dense(jg, jr, b, w, prior=None, offsets=None):
+        n, m, k = jg.shape
+        a = np.zeros((n * m, k + 3 * n))
+        a[:, :k] = jg.reshape(n * m, k)
+        for i in range(n):
+            a[i * m:(i + 1) * m, k + 3 * i:k + 3 * i + 3] = jr[i]
+        sw = np.sqrt(w.ravel())
+        a, rhs = a * sw[:, None], -b.ravel() * sw
+        if prior is not None:
+            p = np.zeros((3 * n, k + 3 * n))
+            p[:, k:] = np.eye(3 * n) / prior
+            a = np.vstack([a, p])
+            rhs = np.concatenate([rhs, -offsets.ravel() / prior])
+        x = np.linalg.lstsq(a, rhs, rcond=None)[0]
+        return x[:k], x[k:].reshape(n, 3), np.linalg.inv(a.T @ a)[:k, :k]
+
+    def test_schur_equals_dense(self):
+        jg, jr, b, w = self._system()
+        u = solve_joint(jg, jr, b, w)
+        dp, dw, cov = self._dense(jg, jr, b, w)
+        np.testing.assert_allclose(u.delta, dp, atol=1e-10)
+        np.testing.assert_allclose(u.rotations, dw, atol=1e-10)
+        np.testing.assert_allclose(u.covariance / u.variance_factor, cov, rtol=1e-8)
+
+    def test_prior_equals_dense(self):
+        jg, jr, b, w = self._system(seed=1)
+        off = np.random.default_rng(2).normal(size=(6, 3)) * 0.1
+        u = solve_joint(jg, jr, b, w, prior=0.3, offsets=off)
+        dp, dw, _ = self._dense(jg, jr, b, w, prior=0.3, offsets=off)
+        np.testing.assert_allclose(u.delta, dp, atol=1e-10)
+        np.testing.assert_allclose(u.rotations, dw, atol=1e-10)
+
+    def test_common_rotation_pinned_only_by_prior(self):
+        # A geometry column that equals a rotation common to every pattern
+        # is undetermined without a prior and determined with one
+        jg, jr, b, w = self._system(seed=3)
+        jg[..., 0] = jr[..., 2]
+        free = solve_joint(jg, jr, b, w)
+        assert free.null_space.shape[1] == 1
+        assert np.isinf(free.standard_errors[0])
+        pinned = solve_joint(jg, jr, b, w, prior=0.01)
+        assert pinned.null_space.shape[1] == 0
+        assert np.isfinite(pinned.standard_errors[0])
+        # Reduced sensitivity is zero without a prior: nothing survives
+        assert free.reduced_norms[0] < 1e-6 * free.full_norms[0]
+
+    def test_standard_errors_match_scatter(self):
+        # Monte Carlo: noise of known sigma, sigma estimated from residuals
+        jg, jr, _, _ = self._system(n=20, m=30, k=2, seed=4)
+        rng = np.random.default_rng(5)
+        est, se = [], []
+        for _ in range(200):
+            b = -(jg @ np.array([0.1, -0.2])) + rng.normal(scale=0.3, size=(20, 30))
+            u = solve_joint(jg, jr, b, np.ones((20, 30)))
+            est.append(u.delta)
+            se.append(u.standard_errors)
+        scatter = np.std(est, axis=0)
+        np.testing.assert_allclose(np.mean(est, axis=0), [0.1, -0.2], atol=3 * scatter.max())
+        np.testing.assert_allclose(np.mean(se, axis=0), scatter, rtol=0.15)
+
+    def test_bad_input(self):
+        jg, jr, b, w = self._system()
+        with pytest.raises(ValueError, match="Shapes"):
+            solve_joint(jg, jr[:, :, :2], b, w)
+        with pytest.raises(ValueError, match="weights"):
+            solve_joint(jg, jr, b, w[:, :3])
+        with pytest.raises(ValueError, match="prior"):
+            solve_joint(jg, jr, b, w, prior=-1)
+        with pytest.raises(ValueError, match="finite"):
+            solve_joint(jg, jr, b * np.nan, w)

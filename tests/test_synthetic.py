@@ -14,7 +14,7 @@ def clean(si_mp):
 
 
 class TestMasterPattern:
-    @pytest.mark.parametrize("name", ["Si", "BaTiO3"])
+    @pytest.mark.parametrize("name", ["Si", "BaTiO3", "Ni"])
     @pytest.mark.parametrize("kind", ["dynamical", "kinematical"])
     def test_lambert_both(self, name, kind):
         mp = synthetic.master_pattern(name, kind=kind, half_size=40)
@@ -46,6 +46,10 @@ class TestMasterPattern:
             synthetic.master_pattern("Fe")
         with pytest.raises(ValueError, match="kind"):
             synthetic.master_pattern("Si", kind="hybrid")
+        with pytest.raises(ValueError, match="EMsoft"):
+            synthetic.master_pattern("Si", kind="emsoft")
+        with pytest.raises(ValueError, match="20 kV"):
+            synthetic.master_pattern("Ni", kind="emsoft", energy=15)
 
     def test_returns_copies(self):
         a = synthetic.master_pattern("Si")
@@ -145,3 +149,222 @@ def test_perturb_rotations_rms():
     p = synthetic.perturb_rotations(r, 0.3, 0)
     rms = np.sqrt(np.mean(np.rad2deg(p.angle) ** 2))
     assert abs(rms - 0.3) < 0.01
+
+
+# --------------------------------------------------------------------- #
+# Start models
+# --------------------------------------------------------------------- #
+
+S = 0.3  # orientation_error, deg
+NAV = (7, 7)
+N = NAV[0] * NAV[1]
+
+
+def _start_map(si_mp, start, seed=4, **kw):
+    return synthetic.synthetic_map(
+        si_mp, NAV, shape=(60, 60), orientation_error=S, start=start, seed=seed, **kw
+    )
+
+
+@pytest.fixture(scope="module")
+def starts(si_mp):
+    return {start: _start_map(si_mp, start) for start in synthetic.START_MODELS}
+
+
+def _ncc(a, b):
+    a = a - a.mean(axis=(1, 2), keepdims=True)
+    b = b - b.mean(axis=(1, 2), keepdims=True)
+    return (a * b).sum(axis=(1, 2)) / np.sqrt((a * a).sum(axis=(1, 2)) * (b * b).sum(axis=(1, 2)))
+
+
+class TestStartModels:
+    def test_same_truth_and_patterns(self, starts):
+        ref = starts["centred"]
+        for start, sm in starts.items():
+            assert sm.start == start
+            assert np.array_equal(sm.signal.data, ref.signal.data)
+            assert np.allclose(sm.xmap.rotations.data, ref.xmap.rotations.data, atol=0)
+            assert np.allclose(sm.signal.xmap.rotations.data, sm.start_xmap.rotations.data)
+            assert sm.start_xmap.phases[0].name == "Si"
+
+    def test_centred_has_no_common_rotation(self, starts):
+        sm = starts["centred"]
+        angle, axis = synthetic.common_rotation(sm.start_xmap, sm.xmap)
+        assert angle < 1e-9
+        mis = np.rad2deg(sm.start_xmap.rotations.angle)
+        assert mis.size == N
+
+    def test_uncentred_common_part_is_random_mean(self, starts):
+        sm = starts["uncentred"]
+        angle, _ = synthetic.common_rotation(sm.start_xmap, sm.xmap)
+        # One draw of |mean| of N vectors of RMS length S: about S / sqrt(N)
+        assert 0.1 * S / np.sqrt(N) < angle < 4 * S / np.sqrt(N)
+        # The same draws as "centred", not centred
+        c = starts["centred"]
+        v_c = synthetic.rotation_vectors(~c.xmap.rotations * c.start_xmap.rotations)
+        v_u = synthetic.rotation_vectors(~sm.xmap.rotations * sm.start_xmap.rotations)
+        assert np.allclose(v_u - v_u.mean(axis=0), v_c, atol=1e-12)
+
+    def test_uncentred_common_part_statistics(self):
+        # RMS of the common angle over many draws is S / sqrt(N)
+        truth = Rotation.identity(N)
+        rng = np.random.default_rng(0)
+        angles = [
+            synthetic.common_rotation(
+                synthetic.perturb_rotations(truth, S, rng, centred=False), truth
+            ).angle
+            for _ in range(400)
+        ]
+        rms = np.sqrt(np.mean(np.square(angles)))
+        assert abs(rms / (S / np.sqrt(N)) - 1) < 0.12
+
+    def test_indexed_absorbs_the_geometry_error(self, si_mp, starts):
+        sm = starts["indexed"]
+        biased = synthetic.common_rotation(sm.start_xmap, sm.xmap).angle
+        assert biased > 3 * S / np.sqrt(N)
+        # At the true geometry, refinement removes the common part instead
+        at_truth = _start_map(si_mp, "indexed", perturbation={})
+        unbiased = synthetic.common_rotation(at_truth.start_xmap, at_truth.xmap).angle
+        assert unbiased < 0.1 * S / np.sqrt(N)
+        assert unbiased < 0.05 * biased
+        assert np.allclose(at_truth.start_detector.pc, at_truth.detector.pc)
+
+    def test_indexed_is_refined(self, si_mp, starts):
+        # The indexed orientations fit the patterns at the starting detector
+        # better than the "uncentred" start they were refined from
+        exp = starts["indexed"].signal.data.reshape(N, 60, 60)
+        det = starts["indexed"].start_detector
+        ncc = {}
+        for start in ("uncentred", "indexed"):
+            sim = simulate_patterns(si_mp, starts[start].start_xmap.rotations, det, 20)
+            ncc[start] = _ncc(sim, exp)
+        assert np.all(ncc["indexed"] >= ncc["uncentred"] - 1e-6)
+        assert ncc["indexed"].mean() > ncc["uncentred"].mean() + 0.05
+
+    @pytest.mark.parametrize("start", synthetic.START_MODELS)
+    def test_seeded(self, si_mp, starts, start):
+        first = starts[start].start_xmap.rotations.data
+        again = _start_map(si_mp, start)
+        assert np.array_equal(again.start_xmap.rotations.data, first)
+        other = _start_map(si_mp, start, seed=5)
+        assert not np.allclose(other.start_xmap.rotations.data, first)
+
+    def test_indexed_lazy_and_noisy(self, si_mp):
+        kw = dict(navigation_shape=(3, 4), shape=(40, 40), dose=200, start="indexed", seed=1)
+        a = synthetic.synthetic_map(si_mp, **kw)
+        b = synthetic.synthetic_map(si_mp, lazy=True, **kw)
+        assert b.signal._lazy
+        assert np.array_equal(a.start_xmap.rotations.data, b.start_xmap.rotations.data)
+        assert synthetic.common_rotation(a.start_xmap, a.xmap).angle > 0.3
+
+    def test_bad_start(self, si_mp):
+        with pytest.raises(ValueError, match="start"):
+            synthetic.synthetic_map(si_mp, (2, 2), start="indexd")
+
+
+class TestCommonRotation:
+    def test_recovers_a_common_rotation(self):
+        truth = Rotation.random(20)
+        t = Rotation.from_axes_angles([1, 2, -2], np.deg2rad(0.8))
+        common = synthetic.common_rotation(truth * t, truth)
+        assert np.isclose(common.angle, 0.8)
+        assert np.allclose(common.axis, np.array([1, 2, -2]) / 3)
+        assert np.allclose(common.vector, 0.8 * np.array([1, 2, -2]) / 3)
+        # The left factor (crystal frame) is not what is measured
+        assert not np.isclose(synthetic.common_rotation(t * truth, truth).angle, 0.8)
+
+    def test_sign_and_zero(self):
+        truth = Rotation.random(3)
+        start = Rotation(-truth.data)  # q and -q: the same rotation
+        assert synthetic.common_rotation(start, truth).angle < 1e-12
+        angle, axis = synthetic.common_rotation(-Rotation.identity(2), Rotation.identity(2))
+        assert angle == 0 and np.array_equal(axis, [0, 0, 1])
+
+    def test_symmetry(self):
+        from orix.quaternion.symmetry import Oh
+
+        truth = Rotation.random(10)
+        t = Rotation.from_axes_angles([0, 0, 1], np.deg2rad(0.5))
+        ops = Oh.proper_subgroup[np.arange(10) % 24]
+        start = ops * (truth * t)
+        assert synthetic.common_rotation(start, truth).angle > 1
+        assert np.isclose(synthetic.common_rotation(start, truth, symmetry=Oh).angle, 0.5)
+
+    def test_sizes_must_match(self):
+        with pytest.raises(ValueError, match="rotations"):
+            synthetic.common_rotation(Rotation.identity(2), Rotation.identity(3))
+
+    def test_rotation_vectors_tiny_angles(self):
+        v = np.array([[1e-12, 0, 0], [0, 2e-9, 0], [0, 0, 0], [0.1, -0.2, 0.3]])
+        angle = np.linalg.norm(v, axis=1)
+        axis = v / np.where(angle > 0, angle, 1)[:, None]
+        # orix's from_axes_angles rounds angles below 1e-8 rad to zero
+        r = Rotation(np.c_[np.cos(angle / 2), axis * np.sin(angle / 2)[:, None]])
+        assert np.allclose(synthetic.rotation_vectors(r), v, rtol=1e-9, atol=1e-20)
+
+
+# --------------------------------------------------------------------- #
+# Nickel: two simulators
+# --------------------------------------------------------------------- #
+
+
+class TestNickel:
+    def test_phase(self):
+        p = synthetic.phase("nickel")
+        assert p.name == "Ni" and p.point_group.name == "m-3m"
+        assert np.allclose(p.structure.lattice.abcABG(), [3.524] * 3 + [90] * 3)
+
+    def test_dynamical_file(self):
+        from importlib import resources
+
+        path = resources.files("kikuchipy_geomdic") / "data" / "Ni_dynamical.npz"
+        with resources.as_file(path) as f:
+            npz = np.load(f)
+            assert npz["data"].shape == (2, 201, 201)
+            assert float(npz["energy"]) == 20
+            assert "ebsdsim 0.2.4" in str(npz["source"])
+            # The CIF the simulation used: ebsdsim's preset Ni
+            assert "3.47514587" in str(npz["cif"])
+        mp = synthetic.master_pattern("Ni")
+        assert mp.metadata.General.title == "Ni dynamical (ebsdsim 0.2.4)"
+        # Centrosymmetric: both hemispheres equal
+        assert np.array_equal(mp.data[0], mp.data[1])
+
+    def test_emsoft_master_pattern(self):
+        mp = synthetic.master_pattern("Ni", kind="emsoft")
+        assert (mp.projection, mp.hemisphere) == ("lambert", "both")
+        assert mp.data.shape == (2, 401, 401) and mp.data.dtype == np.float32
+        assert "EMsoft" in mp.metadata.General.title
+        # The package's phase (angstrom), not kikuchipy's (nm)
+        assert mp.phase.structure.lattice.a == 3.524
+        mp.data[:] = 0
+        assert synthetic.master_pattern("Ni", kind="emsoft").data.max() > 0
+
+    def test_simulators_agree_but_differ(self):
+        emsoft = synthetic.master_pattern("Ni", kind="emsoft")
+        ebsdsim = synthetic.master_pattern("Ni")
+        sm = synthetic.synthetic_map(emsoft, (2, 3), shape=(60, 60), seed=7)
+        assert sm.xmap.phases[0].point_group.name == ebsdsim.phase.point_group.name == "m-3m"
+        other = simulate_patterns(ebsdsim, sm.xmap.rotations, sm.detector, 20)
+        ncc = _ncc(other, sm.signal.data.reshape(other.shape))
+        assert np.all(ncc > 0.5)
+        assert np.all(ncc < 0.99)
+        # Unrelated orientations do not correlate
+        rnd = simulate_patterns(ebsdsim, Rotation.random(6), sm.detector, 20)
+        assert np.all(np.abs(_ncc(rnd, sm.signal.data.reshape(other.shape))) < 0.3)
+
+    def test_kikuchipy_refines_across_simulators(self):
+        # A map simulated from the EMsoft pattern refines with kikuchipy
+        # against the ebsdsim one: the phases are identical to kikuchipy
+        import contextlib
+        import io
+
+        emsoft = synthetic.master_pattern("Ni", kind="emsoft")
+        ebsdsim = synthetic.master_pattern("Ni")
+        sm = synthetic.synthetic_map(emsoft, (2, 2), shape=(60, 60), perturbation={}, seed=3)
+        with contextlib.redirect_stdout(io.StringIO()):
+            ref = sm.signal.refine_orientation(sm.start_xmap, sm.detector, ebsdsim, 20)
+        assert np.all(ref.scores > 0.8)
+        err = np.rad2deg((ref.rotations * ~sm.xmap.rotations).angle)
+        start_err = np.rad2deg((sm.start_xmap.rotations * ~sm.xmap.rotations).angle)
+        assert err.mean() < start_err.mean()
