@@ -1,9 +1,12 @@
 """Global DIC-based sample-detector geometry calibration for EBSD maps.
 
 Importing the package registers :meth:`refine_geometry_dic` on kikuchipy's
-:class:`~kikuchipy.signals.EBSD` (and so on ``LazyEBSD``): a thin method
-over :func:`kikuchipy_geomdic.refinement.refine_geometry_dic`.
+:class:`~kikuchipy.signals.EBSD` (and so on ``LazyEBSD``): the method is
+:func:`kikuchipy_geomdic.refinement.refine_geometry_dic` itself, with the
+signal as its first argument.
 """
+
+import warnings
 
 from kikuchipy.signals import EBSD
 
@@ -11,6 +14,8 @@ from kikuchipy_geomdic import (
     displacement,
     geometry,
     jacobian,
+    maps,
+    phases,
     simulation,
     solve,
     synthetic,
@@ -26,6 +31,8 @@ __all__ = [
     "displacement",
     "geometry",
     "jacobian",
+    "maps",
+    "phases",
     "simulation",
     "solve",
     "synthetic",
@@ -34,10 +41,43 @@ __all__ = [
 ]
 
 
-def _refine_geometry_dic(self, xmap, detector, master_pattern, energy, **kwargs):
-    return refine_geometry_dic(self, xmap, detector, master_pattern, energy, **kwargs)
+def _is_ours(method) -> bool:
+    """Whether *method* is this package's refine_geometry_dic, also from an
+    earlier import of a reloaded module (importlib.reload, IPython's
+    autoreload)."""
+    return method is refine_geometry_dic or (
+        getattr(method, "__module__", None) == refine_geometry_dic.__module__
+        and getattr(method, "__qualname__", None) == refine_geometry_dic.__qualname__
+    )
 
 
-_refine_geometry_dic.__doc__ = refine_geometry_dic.__doc__
-_refine_geometry_dic.__name__ = "refine_geometry_dic"
-EBSD.refine_geometry_dic = _refine_geometry_dic
+def _register() -> None:
+    """Make :func:`refine_geometry_dic` a method of kikuchipy's EBSD.
+
+    The function itself is assigned (its first parameter is the signal), so
+    ``inspect.signature`` and ``help()`` show its parameters and
+    ``s.refine_geometry_dic`` binds the signal. Registering is idempotent.
+
+    If EBSD already has a ``refine_geometry_dic`` that is not ours (a future
+    kikuchipy, another plugin), we warn and leave it alone rather than
+    raise: replacing it would silently change what other code calls, and
+    raising would make this package unimportable although its functional
+    API, ``kikuchipy_geomdic.refine_geometry_dic(signal, ...)``, does not
+    need the method.
+    """
+    existing = getattr(EBSD, "refine_geometry_dic", None)
+    if existing is refine_geometry_dic:
+        return
+    if existing is not None and not _is_ours(existing):
+        warnings.warn(
+            "kikuchipy's EBSD already has a refine_geometry_dic attribute "
+            f"({existing!r}) that is not kikuchipy-geomdic's: it is left in place. Call "
+            "kikuchipy_geomdic.refine_geometry_dic(signal, ...) instead of the method.",
+            UserWarning,
+            stacklevel=3,
+        )
+        return
+    EBSD.refine_geometry_dic = refine_geometry_dic
+
+
+_register()

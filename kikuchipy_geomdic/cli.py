@@ -39,8 +39,9 @@ import sys
 import tempfile
 import time
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 __all__ = [
     "main",
@@ -252,10 +253,6 @@ def load_patterns(path: str | os.PathLike):
     return s
 
 
-def _nav_shape(signal) -> tuple[int, ...]:
-    return tuple(signal.axes_manager.navigation_shape[::-1])
-
-
 def load_crystal_map(path: str | os.PathLike | None, signal):
     """Return the map's starting orientations.
 
@@ -284,12 +281,12 @@ def load_crystal_map(path: str | os.PathLike | None, signal):
     from orix import io as orix_io
     from orix.crystal_map import CrystalMap
 
-    nav = _nav_shape(signal)
+    from kikuchipy_geomdic.maps import navigation_shape
+
+    nav = navigation_shape(signal)
     if path is None:
         xmap = getattr(signal, "xmap", None)
-        ok = xmap is not None and any(
-            i >= 0 and p.point_group is not None for i, p in xmap.phases
-        )
+        ok = xmap is not None and any(i >= 0 and p.point_group is not None for i, p in xmap.phases)
         if not ok:
             raise CLIError(
                 "the pattern file holds no orientations: pass --orientations MAP "
@@ -307,7 +304,8 @@ def load_crystal_map(path: str | os.PathLike | None, signal):
         if not isinstance(xmap, CrystalMap):
             raise CLIError(f"{str(p)!r} holds no crystal map")
         where = f"the orientation map {str(p)!r}"
-    if tuple(xmap.shape) != nav or xmap.size != int(np.prod(nav)):
+    xnav = navigation_shape(xmap) if xmap.ndim in (1, 2) else tuple(xmap.shape)
+    if xnav != nav or xmap.size != int(np.prod(nav)):
         raise CLIError(
             f"{where} has shape {tuple(xmap.shape)} ({xmap.size} points), the patterns "
             f"{nav}: they must describe the same map"
@@ -327,7 +325,8 @@ def _check_step_sizes(signal, xmap) -> None:
         steps = {ax.name: ax.scale for ax in axes}
         xsteps = {"x": xmap.dx, "y": xmap.dy}
         if str(xmap.scan_unit) in _UM and any(
-            k in xsteps and xsteps[k] and abs(v - xsteps[k]) > 1e-6 * abs(v) for k, v in steps.items()
+            k in xsteps and xsteps[k] and abs(v - xsteps[k]) > 1e-6 * abs(v)
+            for k, v in steps.items()
         ):
             _warn(
                 f"step sizes differ: patterns {steps} um, orientation map "
@@ -416,15 +415,22 @@ def load_master_pattern(spec: str, energy: float):
     if energies is not None and np.min(np.abs(energies - energy)) > 0.5:
         raise CLIError(
             f"the master pattern {str(p)!r} was simulated for "
-            + (f"{energies.min():g}-{energies.max():g}" if energies.size > 1 else f"{energies[0]:g}")
+            + (
+                f"{energies.min():g}-{energies.max():g}"
+                if energies.size > 1
+                else f"{energies[0]:g}"
+            )
             + f" kV, not for {energy:g} kV"
         )
     mp = None
     try:
         import kikuchipy as kp
 
-        for kw in (dict(projection="lambert", hemisphere="both", energy=energy),
-                   dict(hemisphere="both"), {}):
+        for kw in (
+            dict(projection="lambert", hemisphere="both", energy=energy),
+            dict(hemisphere="both"),
+            {},
+        ):
             try:
                 mp = kp.load(p, **kw)
                 break
@@ -521,25 +527,17 @@ def start_detector(signal, args: argparse.Namespace | None = None, warn: bool = 
 
 
 def _check_detector(det, signal) -> None:
-    import numpy as np
+    from kikuchipy_geomdic.maps import navigation_shape
 
-    nav, sig = _nav_shape(signal), tuple(signal.axes_manager.signal_shape[::-1])
+    nav, sig = navigation_shape(signal), tuple(signal.axes_manager.signal_shape[::-1])
     if tuple(det.shape) != sig:
         raise CLIError(f"the detector is {tuple(det.shape)} px, the patterns {sig} px")
-    n = int(np.prod(nav))
+    n = nav[0] * nav[1]
     if det.navigation_size not in (1, n):
         raise CLIError(
             f"the detector has {det.navigation_size} PCs, the map {n} points {nav}: "
             "it belongs to another map"
         )
-
-
-def _matched_map(xmap, master_pattern, phase):
-    """The map's phase matched to the master pattern's, replaced by it."""
-    from kikuchipy_geomdic.reindex import match_phase, replace_phase
-
-    pid = match_phase(xmap, master_pattern, _phase_arg(phase))
-    return replace_phase(xmap, pid, master_pattern.phase), pid
 
 
 def _phase_arg(phase: str | None) -> str | int | None:
@@ -552,21 +550,21 @@ def _calibration_points(signal, xmap, phase_id: int, n: int):
     patterns (each candidate pattern is read once)."""
     import numpy as np
 
+    from kikuchipy_geomdic.maps import flat_index, navigation_shape
     from kikuchipy_geomdic.refinement import calibration_points
     from kikuchipy_geomdic.reindex import usable_points
 
-    nav = _nav_shape(signal)
-    nav2 = (1,) + nav if len(nav) == 1 else nav
-    usable = usable_points(xmap, phase_id).reshape(nav2)
+    nav = navigation_shape(signal)
+    usable = usable_points(xmap, phase_id).reshape(nav)
     data = signal.data
     flat = data.reshape((-1,) + tuple(data.shape[-2:]))
     n_blank = 0
     pts = np.zeros((0, 2), dtype=int)
     for _ in range(50):
-        pts = calibration_points(nav2, n, usable)
+        pts = calibration_points(nav, n, usable)
         if not len(pts):
             break
-        sel = flat[pts[:, 0] * nav2[1] + pts[:, 1]]
+        sel = flat[flat_index(pts, nav)]
         sel = np.asarray(sel.compute() if hasattr(sel, "compute") else sel, dtype=np.float32)
         finite = np.isfinite(sel).all(axis=(1, 2))
         ok = finite.copy()
@@ -593,7 +591,9 @@ def _dask_client(address: str | None):
     try:
         client = Client(timeout="20s", **kw)
     except (OSError, TimeoutError, ValueError) as e:
-        raise CLIError(f"cannot connect to the dask scheduler {address!r}: {_one_line(e)}") from None
+        raise CLIError(
+            f"cannot connect to the dask scheduler {address!r}: {_one_line(e)}"
+        ) from None
     try:
         yield client
     finally:
@@ -624,7 +624,7 @@ class _Staging:
                 "--overwrite or choose another --out"
             )
 
-    def __enter__(self) -> "_Staging":
+    def __enter__(self) -> _Staging:
         self.out.mkdir(parents=True, exist_ok=True)
         self.tmp = Path(tempfile.mkdtemp(prefix=".kikuchipy-geomdic-", dir=self.out))
         return self
@@ -650,18 +650,35 @@ class _Staging:
 
 
 def _history_csv(history: list[dict], names: Sequence[str]) -> str:
-    cols = ["iteration", "accepted", "damping", "ncc_before", "ncc_after",
-            "displacement_before", "displacement_after", *names]
+    cols = [
+        "iteration",
+        "accepted",
+        "damping",
+        "ncc_before",
+        "ncc_after",
+        "displacement_before",
+        "displacement_after",
+        *names,
+    ]
     lines = [",".join(cols)]
     for h in history:
-        vals = [h["iteration"], int(h["accepted"]), h["damping"], h["ncc_before"],
-                h["ncc_after"], h["displacement_before"], h["displacement_after"],
-                *(h["parameters"][n] for n in names)]
+        vals = [
+            h["iteration"],
+            int(h["accepted"]),
+            h["damping"],
+            h["ncc_before"],
+            h["ncc_after"],
+            h["displacement_before"],
+            h["displacement_after"],
+            *(h["parameters"][n] for n in names),
+        ]
         lines.append(",".join(f"{v:.12g}" if isinstance(v, float) else str(v) for v in vals))
     return "\n".join(lines) + "\n"
 
 
 def _inputs(args: argparse.Namespace, signal, master_pattern, **extra) -> dict[str, Any]:
+    from kikuchipy_geomdic.maps import navigation_shape
+
     return {
         "command": shlex.join([PROG, *getattr(args, "argv", [])]),
         "patterns": str(Path(args.patterns).resolve()),
@@ -670,11 +687,12 @@ def _inputs(args: argparse.Namespace, signal, master_pattern, **extra) -> dict[s
         ),
         "master_pattern": (
             str(Path(args.master_pattern).resolve())
-            if Path(args.master_pattern).exists() else args.master_pattern
+            if Path(args.master_pattern).exists()
+            else args.master_pattern
         ),
         "master_pattern_title": str(master_pattern.metadata.General.title),
         "energy_kv": float(args.energy),
-        "navigation_shape": list(_nav_shape(signal)),
+        "navigation_shape": list(navigation_shape(signal)),
         "pattern_shape": list(signal.axes_manager.signal_shape[::-1]),
         **extra,
     }
@@ -693,6 +711,8 @@ def _refine(args: argparse.Namespace) -> int:
     import numpy as np
 
     from kikuchipy_geomdic import conventions as cv
+    from kikuchipy_geomdic.maps import flat_index, navigation_shape
+    from kikuchipy_geomdic.phases import check_phase
     from kikuchipy_geomdic.refinement import refine_geometry_dic
 
     staging = _Staging(args.out, REFINE_OUTPUTS, args.overwrite)
@@ -701,11 +721,11 @@ def _refine(args: argparse.Namespace) -> int:
     xmap = load_crystal_map(args.orientations, signal)
     _check_step_sizes(signal, xmap)
     mp = load_master_pattern(args.master_pattern, args.energy)
-    xmap_c, phase_id = _matched_map(xmap, mp, args.phase)
+    phase_id = check_phase(xmap, mp, _phase_arg(args.phase))
     det = start_detector(signal, args)
     _check_detector(det, signal)
 
-    pts, n_usable, n_blank = _calibration_points(signal, xmap_c, phase_id, args.points)
+    pts, n_usable, n_blank = _calibration_points(signal, xmap, phase_id, args.points)
     if n_blank:
         _warn(f"{n_blank} calibration candidate pattern(s) hold NaN or are blank: skipped")
     if len(pts) < args.points:
@@ -716,29 +736,44 @@ def _refine(args: argparse.Namespace) -> int:
         )
     if not len(pts):
         raise CLIError("no usable calibration point in the map")
-    nav = _nav_shape(signal)
+    nav = navigation_shape(signal)
     say(
         f"Calibrating the geometry of {str(args.patterns)!r}: map {nav}, patterns "
-        f"{tuple(det.shape)} px, {xmap_c.phases[phase_id].name}, {args.energy:g} kV, "
+        f"{tuple(det.shape)} px, {mp.phase.name}, {args.energy:g} kV, "
         f"{len(pts)} points"
     )
     t0 = time.perf_counter()
     with _dask_client(args.scheduler):
         res = refine_geometry_dic(
-            signal, xmap_c, det, mp, args.energy,
-            parameters=args.parameters, points=pts, rois=tuple(args.rois),
-            max_iterations=args.max_iterations, phase=phase_id, seed=args.seed,
+            signal,
+            xmap,
+            det,
+            mp,
+            args.energy,
+            parameters=args.parameters,
+            points=pts,
+            solver=args.solver,
+            orientation_prior=args.orientation_prior,
+            rois=tuple(args.rois),
+            max_iterations=args.max_iterations,
+            phase=phase_id,
+            seed=args.seed,
             show_progressbar=not args.quiet,
         )
     seconds = time.perf_counter() - t0
     summary = cv.summary_from_result(
         res,
-        **_inputs(args, signal, mp, phase=xmap_c.phases[phase_id].name,
-                  points_requested=args.points, seconds=round(seconds, 3)),
+        **_inputs(
+            args,
+            signal,
+            mp,
+            phase=mp.phase.name,
+            points_requested=args.points,
+            seconds=round(seconds, 3),
+        ),
     )
     flat = signal.data.reshape((-1,) + tuple(signal.data.shape[-2:]))
-    r, c = res.points[0]
-    pattern = flat[int(r) * res.geometry.navigation_shape[1] + int(c)]
+    pattern = flat[int(flat_index(res.points[0], res.geometry.navigation_shape))]
     pattern = np.asarray(pattern.compute() if hasattr(pattern, "compute") else pattern)
 
     with staging as st:
@@ -776,6 +811,7 @@ def _refine(args: argparse.Namespace) -> int:
 def _reindex_detector(args: argparse.Namespace, signal):
     """The detector to reindex with, and where it came from."""
     from kikuchipy_geomdic import conventions as cv
+    from kikuchipy_geomdic.maps import navigation_shape
 
     overrides = [k for k in _GEOMETRY_OPTIONS + ("convention",) if getattr(args, k) is not None]
     if args.detector is None:
@@ -796,12 +832,11 @@ def _reindex_detector(args: argparse.Namespace, signal):
             raise CLIError(f"{str(p)!r} holds neither detector.txt nor summary.json")
     if p.suffix.lower() == ".json":
         geo = cv.geometry_from_summary(cv.read_summary(p))
-        nav = _nav_shape(signal)
-        nav2 = (1,) + nav if len(nav) == 1 else nav
-        if tuple(geo.navigation_shape) != tuple(nav2):
+        nav = navigation_shape(signal)
+        if tuple(geo.navigation_shape) != nav:
             raise CLIError(
                 f"{str(p)!r} was calibrated on a map of {tuple(geo.navigation_shape)} "
-                f"points, the patterns are {nav2}"
+                f"points, the patterns are {nav}"
             )
         det = geo.detector()
     else:
@@ -814,7 +849,9 @@ def _reindex(args: argparse.Namespace) -> int:
     from orix import io as orix_io
 
     from kikuchipy_geomdic import conventions as cv
-    from kikuchipy_geomdic.reindex import match_phase, reindex, usable_points
+    from kikuchipy_geomdic.maps import navigation_shape
+    from kikuchipy_geomdic.phases import check_phase
+    from kikuchipy_geomdic.reindex import reindex, usable_points
 
     staging = _Staging(args.out, REINDEX_OUTPUTS, args.overwrite)
     say = (lambda *a: None) if args.quiet else print
@@ -822,7 +859,7 @@ def _reindex(args: argparse.Namespace) -> int:
     xmap = load_crystal_map(args.orientations, signal)
     _check_step_sizes(signal, xmap)
     mp = load_master_pattern(args.master_pattern, args.energy)
-    phase_id = match_phase(xmap, mp, _phase_arg(args.phase))
+    phase_id = check_phase(xmap, mp, _phase_arg(args.phase))
     det, source = _reindex_detector(args, signal)
     _check_detector(det, signal)
     kw: dict[str, Any] = {"method": args.method}
@@ -832,20 +869,28 @@ def _reindex(args: argparse.Namespace) -> int:
         except json.JSONDecodeError as e:
             raise CLIError(f"--method-kwargs is not JSON: {e}") from None
         if not isinstance(kw["method_kwargs"], dict):
-            raise CLIError("--method-kwargs must be a JSON object, e.g. '{\"method\": \"Powell\"}'")
+            raise CLIError('--method-kwargs must be a JSON object, e.g. \'{"method": "Powell"}\'')
     if args.trust_region is not None:
         kw["trust_region"] = list(args.trust_region)
 
     todo = usable_points(xmap, phase_id)
     say(
         f"Reindexing {int(todo.sum())} point(s) of {str(args.patterns)!r} "
-        f"({_nav_shape(signal)} map, {xmap.phases[phase_id].name}) with the detector "
+        f"({navigation_shape(signal)} map, {xmap.phases[phase_id].name}) with the detector "
         f"from {source}"
     )
     t0 = time.perf_counter()
     with _dask_client(args.scheduler):
-        out = reindex(signal, xmap, det, mp, args.energy, phase=phase_id,
-                      show_progressbar=not args.quiet, **kw)
+        out = reindex(
+            signal,
+            xmap,
+            det,
+            mp,
+            args.energy,
+            phase=phase_id,
+            show_progressbar=not args.quiet,
+            **kw,
+        )
     seconds = time.perf_counter() - t0
     refined = out.prop["refined"].astype(bool)
     scores = out.prop["scores"][refined]
@@ -866,9 +911,7 @@ def _reindex(args: argparse.Namespace) -> int:
         "format_version": 1,
         "versions": cv._versions(),
         "detector_source": source,
-        "detector_reference_pc": {
-            c: cv.export_geometry(_one_pc(det), c) for c in cv.CONVENTIONS
-        },
+        "detector_reference_pc": {c: cv.export_geometry(_one_pc(det), c) for c in cv.CONVENTIONS},
         "refine_kwargs": kw,
         "result": stats,
         "inputs": _inputs(args, signal, mp, phase=out.phases[phase_id].name),
@@ -880,7 +923,11 @@ def _reindex(args: argparse.Namespace) -> int:
         st.commit()
     say(
         f"Refined {stats['refined']} of {stats['points']} points in {seconds:.1f} s"
-        + (f"; mean NCC {stats['mean_ncc']:.4f} (min {stats['min_ncc']:.4f})" if scores.size else "")
+        + (
+            f"; mean NCC {stats['mean_ncc']:.4f} (min {stats['min_ncc']:.4f})"
+            if scores.size
+            else ""
+        )
         + f"; {stats['not_refined_unusable']} not indexed or unusable, "
         f"{stats['not_refined_nan_patterns']} with NaN patterns."
     )
@@ -903,7 +950,7 @@ def _write_ang(path: Path, xmap, detector) -> None:
     for i, line in enumerate(lines):
         if not line.startswith("#"):
             break
-        for key, value in zip(("x-star", "y-star", "z-star"), pc):
+        for key, value in zip(("x-star", "y-star", "z-star"), pc, strict=True):
             if line.split()[1:2] == [key]:
                 lines[i] = f"# {key:<22} {value:.6f}"
     path.write_text("\n".join(lines))
@@ -924,52 +971,70 @@ def _one_pc(det):
 def _common_parser() -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument(
-        "patterns", metavar="PATTERNS",
+        "patterns",
+        metavar="PATTERNS",
         help="EBSD map: any file kikuchipy.load reads (EDAX, Oxford or Bruker h5ebsd, "
         "NORDIF, kikuchipy h5ebsd, ...); read lazily",
     )
     common.add_argument(
-        "--orientations", metavar="MAP",
+        "--orientations",
+        metavar="MAP",
         help="starting orientations: a crystal map orix reads (.ang, .ctf, orix h5); "
         "default: the orientations stored with the patterns",
     )
     common.add_argument(
-        "--master-pattern", metavar="MP", required=True,
+        "--master-pattern",
+        metavar="MP",
+        required=True,
         help="master pattern file kikuchipy reads (e.g. EMsoft h5), or a shipped one: "
         + ", ".join(MASTER_PATTERN_NAMES),
     )
-    common.add_argument("--energy", metavar="KV", type=float, required=True,
-                        help="beam energy in kV")
-    common.add_argument("--phase", metavar="NAME",
-                        help="phase of the map to use (default: the one matching the master pattern)")
-    geo = common.add_argument_group(
-        "starting geometry (default: the pattern file's metadata)"
+    common.add_argument(
+        "--energy", metavar="KV", type=float, required=True, help="beam energy in kV"
     )
-    geo.add_argument("--pc", metavar=("X", "Y", "Z"), nargs=3, type=float,
-                     help="projection centre in --convention")
+    common.add_argument(
+        "--phase",
+        metavar="NAME",
+        help="name or id of the map's phase to use, which must match the master "
+        "pattern's (default: the map's only indexed phase)",
+    )
+    geo = common.add_argument_group("starting geometry (default: the pattern file's metadata)")
     geo.add_argument(
-        "--convention", choices=("bruker", "edax", "tsl", "oxford", "emsoft", "emsoft4", "emsoft5"),
-        type=str.lower, help="convention of --pc (default bruker; emsoft = emsoft5)",
+        "--pc",
+        metavar=("X", "Y", "Z"),
+        nargs=3,
+        type=float,
+        help="projection centre in --convention",
+    )
+    geo.add_argument(
+        "--convention",
+        choices=("bruker", "edax", "tsl", "oxford", "emsoft", "emsoft4", "emsoft5"),
+        type=str.lower,
+        help="convention of --pc (default bruker; emsoft = emsoft5)",
     )
     geo.add_argument("--tilt", type=float, metavar="DEG", help="detector tilt")
     geo.add_argument("--sample-tilt", type=float, metavar="DEG", help="sample tilt")
-    geo.add_argument("--azimuthal", type=float, metavar="DEG",
-                     help="detector azimuthal angle (kikuchipy >= 0.12 sign)")
+    geo.add_argument(
+        "--azimuthal",
+        type=float,
+        metavar="DEG",
+        help="detector azimuthal angle (kikuchipy >= 0.12 sign)",
+    )
     geo.add_argument("--twist", type=float, metavar="DEG", help="detector twist")
-    geo.add_argument("--px-size", type=float, metavar="UM",
-                     help="unbinned detector pixel size in micrometres")
+    geo.add_argument(
+        "--px-size", type=float, metavar="UM", help="unbinned detector pixel size in micrometres"
+    )
     geo.add_argument("--binning", type=float, metavar="B", help="detector binning")
     run = common.add_argument_group("running")
-    run.add_argument("--overwrite", action="store_true",
-                     help="replace results already in --out")
+    run.add_argument("--overwrite", action="store_true", help="replace results already in --out")
     run.add_argument("--quiet", action="store_true", help="no progress output")
     run.add_argument(
-        "--scheduler", metavar="ADDRESS",
+        "--scheduler",
+        metavar="ADDRESS",
         help="run the dask work on a running dask.distributed scheduler (address "
         "such as tcp://host:8786, or a scheduler file .json); see docs/cluster.md",
     )
-    run.add_argument("--traceback", action="store_true",
-                     help="show the full traceback of errors")
+    run.add_argument("--traceback", action="store_true", help="show the full traceback of errors")
     return common
 
 
@@ -993,11 +1058,11 @@ def _parser() -> argparse.ArgumentParser:
     demo.add_argument("--cols", type=int, default=10, help="map columns (default 10)")
     demo.add_argument("--size", type=int, default=120, help="pattern side in px (default 120)")
     demo.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    demo.add_argument("--points", type=int, default=100, help="calibration points (default 100)")
     demo.add_argument(
-        "--points", type=int, default=100, help="calibration points (default 100)"
-    )
-    demo.add_argument(
-        "--dose", type=float, default=None,
+        "--dose",
+        type=float,
+        default=None,
         help="shot noise, mean counts per pixel (default: noise-free)",
     )
     demo.add_argument(
@@ -1007,7 +1072,8 @@ def _parser() -> argparse.ArgumentParser:
 
     common = _common_parser()
     refine = sub.add_parser(
-        "refine", parents=[common],
+        "refine",
+        parents=[common],
         help="calibrate the sample-detector geometry of a map",
         description=(
             "Calibrate PC, detector tilt, azimuthal and sample tilt of an EBSD map by "
@@ -1022,24 +1088,64 @@ def _parser() -> argparse.ArgumentParser:
             "--binning 8 --out calibration"
         ),
     )
-    refine.add_argument("--parameters", nargs="+", choices=PARAMETERS,
-                        default=list(DEFAULT_PARAMETERS), metavar="NAME",
-                        help=f"parameters to refine (default: {' '.join(DEFAULT_PARAMETERS)}; "
-                        f"choices: {' '.join(PARAMETERS)})")
-    refine.add_argument("--points", type=_positive_int, default=100, metavar="N",
-                        help="calibration points spread over the map (default 100)")
-    refine.add_argument("--max-iterations", type=_positive_int, default=10, metavar="N",
-                        help="upper bound on geometry updates (default 10)")
-    refine.add_argument("--rois", type=_positive_int, nargs=2, default=[8, 8],
-                        metavar=("ROWS", "COLS"),
-                        help="ROI grid of the displacement field (default 8 8)")
+    refine.add_argument(
+        "--parameters",
+        nargs="+",
+        choices=PARAMETERS,
+        default=list(DEFAULT_PARAMETERS),
+        metavar="NAME",
+        help=f"parameters to refine (default: {' '.join(DEFAULT_PARAMETERS)}; "
+        f"choices: {' '.join(PARAMETERS)})",
+    )
+    refine.add_argument(
+        "--solver",
+        choices=("joint", "paper"),
+        default="joint",
+        help="joint: geometry and one rotation per point from every pattern's field "
+        "(default); paper: the paper's averaged-field loop",
+    )
+    refine.add_argument(
+        "--orientation-prior",
+        type=float,
+        default=None,
+        metavar="DEG",
+        help="RMS error of the starting orientations, believed independent and "
+        "zero-mean (default: none; the angles are then measured from the PC field only)",
+    )
+    refine.add_argument(
+        "--points",
+        type=_positive_int,
+        default=100,
+        metavar="N",
+        help="calibration points spread over the map (default 100)",
+    )
+    refine.add_argument(
+        "--max-iterations",
+        type=_positive_int,
+        default=10,
+        metavar="N",
+        help="upper bound on geometry updates (default 10)",
+    )
+    refine.add_argument(
+        "--rois",
+        type=_positive_int,
+        nargs=2,
+        default=[8, 8],
+        metavar=("ROWS", "COLS"),
+        help="ROI grid of the displacement field (default 8 8)",
+    )
     refine.add_argument("--seed", type=int, default=0, help="seed of the DIC noise (default 0)")
-    refine.add_argument("--out", metavar="DIR", default="geomdic-refine",
-                        help="output folder (default geomdic-refine)")
+    refine.add_argument(
+        "--out",
+        metavar="DIR",
+        default="geomdic-refine",
+        help="output folder (default geomdic-refine)",
+    )
     refine.set_defaults(func=_refine)
 
     reidx = sub.add_parser(
-        "reindex", parents=[common],
+        "reindex",
+        parents=[common],
         help="refine every orientation of a map with a calibrated detector",
         description=(
             "Refine the orientation of every indexed point of the map with a calibrated "
@@ -1053,19 +1159,34 @@ def _parser() -> argparse.ArgumentParser:
         ),
     )
     reidx.add_argument(
-        "--detector", metavar="CAL",
+        "--detector",
+        metavar="CAL",
         help="calibrated detector: a refine output folder, its detector*.txt or "
         "summary.json (default: the pattern file's detector with the geometry options)",
     )
-    reidx.add_argument("--method", default="minimize",
-                       help="kikuchipy optimisation method (default minimize: Nelder-Mead)")
-    reidx.add_argument("--method-kwargs", metavar="JSON",
-                       help="keyword arguments of the method as JSON, e.g. "
-                       "'{\"method\": \"Powell\"}'")
-    reidx.add_argument("--trust-region", type=float, nargs=3, metavar=("D1", "D2", "D3"),
-                       help="+- bounds in degrees on the three Euler angles")
-    reidx.add_argument("--out", metavar="DIR", default="geomdic-reindex",
-                       help="output folder (default geomdic-reindex)")
+    reidx.add_argument(
+        "--method",
+        default="minimize",
+        help="kikuchipy optimisation method (default minimize: Nelder-Mead)",
+    )
+    reidx.add_argument(
+        "--method-kwargs",
+        metavar="JSON",
+        help='keyword arguments of the method as JSON, e.g. \'{"method": "Powell"}\'',
+    )
+    reidx.add_argument(
+        "--trust-region",
+        type=float,
+        nargs=3,
+        metavar=("D1", "D2", "D3"),
+        help="+- bounds in degrees on the three Euler angles",
+    )
+    reidx.add_argument(
+        "--out",
+        metavar="DIR",
+        default="geomdic-reindex",
+        help="output folder (default geomdic-reindex)",
+    )
     reidx.set_defaults(func=_reindex)
     return parser
 

@@ -76,6 +76,8 @@ from kikuchipy_geomdic.jacobian import (
     finite_difference_jacobian,
     pattern_jacobian,
 )
+from kikuchipy_geomdic.maps import flat_index, navigation_shape
+from kikuchipy_geomdic.phases import check_phase
 from kikuchipy_geomdic.reindex import usable_points
 from kikuchipy_geomdic.simulation import check_master_pattern, simulate_patterns
 from kikuchipy_geomdic.solve import JointUpdate, coupling_matrix, solve_joint, solve_update
@@ -334,17 +336,6 @@ def calibration_points(
     return np.array(sorted(out), dtype=int).reshape(-1, 2)
 
 
-def _navigation_shape(signal: EBSD) -> tuple[int, int]:
-    nav = signal.axes_manager.navigation_shape[::-1]
-    if len(nav) == 1:
-        return (1, nav[0])
-    if len(nav) != 2:
-        raise ValueError(
-            f"The signal must have a 1D or 2D navigation shape, not {nav}"
-        )
-    return tuple(nav)
-
-
 def _step_sizes(signal: EBSD) -> tuple[float, float]:
     axes = signal.axes_manager.navigation_axes
     if len(axes) == 2:
@@ -380,29 +371,7 @@ def _check_inputs(signal, xmap, detector, master_pattern, phase, nav):
             f"The detector has {n_pc} PCs, which fits neither one PC nor the "
             f"signal's {nav[0] * nav[1]} map points"
         )
-    ids = [i for i in xmap.phases_in_data.ids if i >= 0]
-    if phase is None:
-        if len(ids) > 1:
-            names = [xmap.phases[i].name for i in ids]
-            raise ValueError(
-                f"xmap has several phases {names}: choose one with phase=<name>"
-            )
-        if not ids:
-            raise ValueError("xmap has no indexed points")
-        phase_id = ids[0]
-    else:
-        try:
-            phase_id = xmap.phases.id_from_name(phase) if isinstance(phase, str) else int(phase)
-        except (KeyError, ValueError, AttributeError):
-            raise ValueError(f"Phase {phase!r} is not in xmap's phases") from None
-    mp_pg = master_pattern.phase.point_group
-    x_pg = xmap.phases[phase_id].point_group
-    if mp_pg is not None and x_pg is not None and mp_pg.name != x_pg.name:
-        raise ValueError(
-            f"The master pattern's point group {mp_pg.name} differs from the "
-            f"phase's {x_pg.name} in xmap"
-        )
-    return phase_id
+    return check_phase(xmap, master_pattern, phase)
 
 
 # --------------------------------------------------------------------- #
@@ -429,6 +398,10 @@ DETERMINACY_LIMITS = {
 
 #: Name of the determined combination of the two equivalent tilts.
 TILT_DIFFERENCE = "tilt-sample_tilt"
+
+#: Smallest vector variance (px^2) assumed: DIC is not more precise than
+#: 1e-4 px, and a start at the exact truth must not give infinite weights.
+MIN_VARIANCE = 1e-8
 
 #: A step that lowers the displacement by less than this fraction ends
 #: the joint loop: the measurement's noise floor is reached.
@@ -645,6 +618,7 @@ def _pattern_variances(
     rss = (c * r**2).sum(axis=1)
     var = np.where(m > 3, rss / np.maximum(m - 3, 1), np.nan)
     floor = np.nanmedian(var) if np.isfinite(var).any() else 1.0
+    floor = max(floor, MIN_VARIANCE)
     return np.where(np.isfinite(var), np.maximum(var, floor), floor)
 
 
@@ -1043,7 +1017,7 @@ def refine_geometry_dic(
             f"orientation_prior must be a positive RMS angle in degrees or None, "
             f"not {orientation_prior}"
         )
-    nav = _navigation_shape(signal)
+    nav = navigation_shape(signal)
     phase_id = _check_inputs(signal, xmap, detector, master_pattern, phase, nav)
     step_all = dict(DEFAULT_STEPS)
     if steps:
@@ -1067,7 +1041,7 @@ def refine_geometry_dic(
 
     exp = _experimental(signal, pts, nav)
     geometry0 = MapGeometry.from_detector(detector, _step_sizes(signal), nav)
-    flat = pts[:, 0] * nav[1] + pts[:, 1]
+    flat = flat_index(pts, nav)
     lookup = np.full(nav[0] * nav[1], -1)
     lookup[xmap.id] = np.arange(xmap.size)
     start_rot = Rotation(xmap.rotations.data[lookup[flat]])
@@ -1223,7 +1197,7 @@ def _experimental(signal: EBSD, pts: np.ndarray, nav: tuple[int, int]) -> np.nda
     else:
         # Sorted, unique row-major indices read a lazy signal chunk-wise
         data = data.reshape((nav[0] * nav[1],) + data.shape[-2:])
-        sel = data[pts[:, 0] * nav[1] + pts[:, 1]]
+        sel = data[flat_index(pts, nav)]
     if hasattr(sel, "compute"):
         sel = sel.compute()
     sel = np.asarray(sel, dtype=np.float32)

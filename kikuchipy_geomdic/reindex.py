@@ -6,10 +6,11 @@ expensive part, one optimisation per pattern. :func:`reindex` is a thin
 wrapper over kikuchipy's :meth:`~kikuchipy.signals.EBSD.refine_orientation`
 that adds what a whole real map needs:
 
-- the map's phase is matched to the master pattern's (orix reads an
-  ``.ang`` file's phase with its proper point group only, e.g. 432 for
-  silicon, which kikuchipy would refuse against an m-3m master pattern),
-  and a master pattern of another phase is refused with a clear message;
+- the map's phase is matched to the master pattern's by the package's
+  one rule (:mod:`kikuchipy_geomdic.phases`: orix reads an ``.ang``
+  file's phase with its proper point group only, e.g. 432 for silicon,
+  which kikuchipy would refuse against an m-3m master pattern), and a
+  master pattern of another phase is refused with a clear message;
 - points that cannot be refined (not indexed, zero or NaN rotations,
   another phase, masked out) are excluded and kept as they were, points
   whose pattern holds NaN come back as not indexed;
@@ -35,214 +36,21 @@ from typing import Any
 import numpy as np
 from kikuchipy.detectors import EBSDDetector
 from kikuchipy.signals import EBSD, EBSDMasterPattern
-from orix.crystal_map import CrystalMap, Phase, PhaseList
+from orix.crystal_map import CrystalMap, PhaseList
 from orix.quaternion import Rotation
 
-from kikuchipy_geomdic.simulation import check_master_pattern
+from kikuchipy_geomdic.maps import check_whole_map, navigation_shape
 
-__all__ = ["phases_match", "match_phase", "replace_phase", "usable_points", "reindex"]
+# Defined in kikuchipy_geomdic.phases; importable from here for existing code
+from kikuchipy_geomdic.phases import (  # noqa: F401
+    check_phase,
+    map_with_phase,
+    match_phase,
+    phases_match,
+    replace_phase,
+)
 
-
-# --------------------------------------------------------------------- #
-# Phases
-# --------------------------------------------------------------------- #
-
-
-def _proper_point_group(phase: Phase) -> str | None:
-    pg = phase.point_group
-    if pg is None:
-        return None
-    return pg.proper_subgroup.name
-
-
-def _lattice(phase: Phase) -> np.ndarray | None:
-    """(a, b, c, alpha, beta, gamma), or None if unset (orix's default
-    unit cube)."""
-    try:
-        abc = np.asarray(phase.structure.lattice.abcABG(), dtype=float)
-    except Exception:  # pragma: no cover - orix without a structure
-        return None
-    if np.allclose(abc, [1, 1, 1, 90, 90, 90]):
-        return None
-    return abc
-
-
-def _lattices_agree(a: np.ndarray, b: np.ndarray, rtol: float = 0.02) -> bool:
-    """Equal within *rtol*, allowing nm against angstrom (orix reads
-    angstrom from .ang/.ctf files, kikuchipy nm from EMsoft files)."""
-    if not np.allclose(a[3:], b[3:], atol=1.0):
-        return False
-    return any(np.allclose(a[:3] * f, b[:3], rtol=rtol) for f in (1.0, 10.0, 0.1))
-
-
-def _describe(phase: Phase) -> str:
-    pg = phase.point_group.name if phase.point_group is not None else "no symmetry"
-    lat = _lattice(phase)
-    cell = "" if lat is None else f", a b c = {lat[0]:.4g} {lat[1]:.4g} {lat[2]:.4g}"
-    return f"{phase.name or '(unnamed)'!r} ({pg}{cell})"
-
-
-def phases_match(phase: Phase, other: Phase) -> bool:
-    """Return whether two orix phases describe the same crystal.
-
-    The proper point groups must be equal; then the lattice parameters
-    must agree within 2 % (in angstrom or nm) if both are known, else the
-    names must agree (case-insensitive) if both are given.
-
-    Parameters
-    ----------
-    phase, other
-        Phases, e.g. of a crystal map and of a master pattern.
-
-    Returns
-    -------
-    match
-
-    Examples
-    --------
-    >>> from orix.crystal_map import Phase
-    >>> from kikuchipy_geomdic.reindex import phases_match
-    >>> si = Phase("Si", point_group="m-3m")
-    >>> phases_match(si, Phase("si", point_group="432"))
-    True
-    >>> phases_match(si, Phase("BaTiO3", point_group="4mm"))
-    False
-    """
-    pa, pb = _proper_point_group(phase), _proper_point_group(other)
-    if pa is None or pb is None or pa != pb:
-        return False
-    la, lb = _lattice(phase), _lattice(other)
-    if la is not None and lb is not None:
-        return _lattices_agree(la, lb)
-    if phase.name and other.name:
-        return phase.name.lower() == other.name.lower()
-    return True
-
-
-def match_phase(
-    xmap: CrystalMap, master_pattern: EBSDMasterPattern, phase: str | int | None = None
-) -> int:
-    """Return the id of the map's phase the master pattern is of.
-
-    Parameters
-    ----------
-    xmap
-        Crystal map.
-    master_pattern
-        Master pattern whose ``phase`` is matched (see :func:`phases_match`).
-    phase
-        Name or id of the phase to use; checked against the master
-        pattern. Default: the one indexed phase matching it.
-
-    Returns
-    -------
-    phase_id
-
-    Raises
-    ------
-    ValueError
-        If the chosen phase does not match the master pattern, if no
-        indexed phase does, or if several do and none was chosen.
-
-    Examples
-    --------
-    >>> from kikuchipy_geomdic import synthetic
-    >>> from kikuchipy_geomdic.reindex import match_phase
-    >>> sm = synthetic.synthetic_map("Si", (2, 2), shape=(20, 20))
-    >>> match_phase(sm.xmap, sm.master_pattern)
-    0
-    """
-    check_master_pattern(master_pattern)
-    mp_phase = master_pattern.phase
-    if _proper_point_group(mp_phase) is None:
-        raise ValueError("The master pattern has no phase symmetry: set master_pattern.phase")
-    if phase is not None:
-        try:
-            pid = xmap.phases.id_from_name(phase) if isinstance(phase, str) else int(phase)
-            p = xmap.phases[pid]
-        except (KeyError, ValueError, IndexError, TypeError):
-            raise ValueError(
-                f"Phase {phase!r} is not in the map's phases {xmap.phases.names}"
-            ) from None
-        if not phases_match(p, mp_phase):
-            raise ValueError(
-                f"The master pattern's phase {_describe(mp_phase)} does not match the "
-                f"map's phase {_describe(p)}"
-            )
-        return int(pid)
-    ids = [int(i) for i in np.unique(xmap.phase_id) if i >= 0]
-    if not ids:
-        raise ValueError("The crystal map has no indexed points")
-    hits = [i for i in ids if phases_match(xmap.phases[i], mp_phase)]
-    if not hits:
-        found = ", ".join(_describe(xmap.phases[i]) for i in ids)
-        raise ValueError(
-            f"The master pattern's phase {_describe(mp_phase)} matches none of the "
-            f"map's phases: {found}"
-        )
-    if len(hits) > 1:
-        names = [xmap.phases[i].name for i in hits]
-        raise ValueError(f"Several phases of the map match the master pattern {names}: choose one")
-    return hits[0]
-
-
-def replace_phase(xmap: CrystalMap, phase_id: int, phase: Phase) -> CrystalMap:
-    """Return a copy of a crystal map with one phase replaced.
-
-    Used to give a map read from a file (e.g. ``.ang``, whose phase orix
-    knows only by its proper point group) the master pattern's phase, as
-    kikuchipy requires identical phases.
-
-    Parameters
-    ----------
-    xmap
-        Crystal map; not modified. All its points must be in the data.
-    phase_id
-        Id of the phase to replace.
-    phase
-        The new phase (copied; it keeps the old phase's colour).
-
-    Returns
-    -------
-    xmap_new
-        Same rotations, phase ids, coordinates, properties and scan unit.
-
-    Examples
-    --------
-    >>> from orix.crystal_map import Phase
-    >>> from kikuchipy_geomdic import synthetic
-    >>> from kikuchipy_geomdic.reindex import replace_phase
-    >>> sm = synthetic.synthetic_map("Si", (2, 2), shape=(20, 20))
-    >>> new = replace_phase(sm.xmap, 0, Phase("silicon", point_group="m-3m"))
-    >>> new.phases[0].name, sm.xmap.phases[0].name
-    ('silicon', 'Si')
-    """
-    _check_in_data(xmap)
-    return _new_map(
-        xmap,
-        Rotation(xmap.rotations.data.reshape(-1, 4).copy()),
-        xmap.phase_id.copy(),
-        {k: np.asarray(v).copy() for k, v in xmap.prop.items()},
-        phase_id,
-        phase,
-    )
-
-
-def _new_map(xmap, rotations, phase_ids, prop, phase_id, phase) -> CrystalMap:
-    phases = {int(i): p.deepcopy() for i, p in xmap.phases if i >= 0}
-    new = phase.deepcopy()
-    if phase_id in phases:
-        new.color = phases[phase_id].color
-    phases[phase_id] = new
-    return CrystalMap(
-        rotations=rotations,
-        phase_id=phase_ids,
-        x=None if xmap.x is None else xmap.x.copy(),
-        y=None if xmap.y is None else xmap.y.copy(),
-        phase_list=PhaseList(phases),
-        prop=prop,
-        scan_unit=xmap.scan_unit,
-    )
+__all__ = ["usable_points", "reindex"]
 
 
 def usable_points(xmap: CrystalMap, phase_id: int | None = None) -> np.ndarray:
@@ -274,7 +82,7 @@ def usable_points(xmap: CrystalMap, phase_id: int | None = None) -> np.ndarray:
     >>> usable_points(xmap).tolist()
     [True, False, False, False]
     """
-    _check_in_data(xmap)
+    check_whole_map(xmap)
     q = xmap.rotations.data.reshape(-1, 4)
     with np.errstate(invalid="ignore"):
         ok = np.isfinite(q).all(axis=1) & (np.abs(np.linalg.norm(q, axis=1) - 1) < 1e-3)
@@ -283,25 +91,9 @@ def usable_points(xmap: CrystalMap, phase_id: int | None = None) -> np.ndarray:
     return ok.reshape(xmap.shape)
 
 
-def _check_in_data(xmap: CrystalMap) -> None:
-    if not isinstance(xmap, CrystalMap):
-        raise TypeError(f"xmap must be an orix CrystalMap, not {type(xmap).__name__}")
-    if not np.all(xmap.is_in_data):
-        raise ValueError(
-            "The crystal map has points outside its data (a sliced or masked map): "
-            "pass the whole map and exclude points with navigation_mask"
-        )
-    if xmap.rotations_per_point != 1:
-        raise ValueError("The crystal map must have one rotation per point")
-
-
 # --------------------------------------------------------------------- #
 # Reindexing
 # --------------------------------------------------------------------- #
-
-
-def _nav_shape(signal: EBSD) -> tuple[int, ...]:
-    return tuple(signal.axes_manager.navigation_shape[::-1])
 
 
 def reindex(
@@ -333,8 +125,9 @@ def reindex(
     energy
         Beam energy in kV.
     phase
-        Name or id of the map's phase to refine; default the one matching
-        the master pattern (:func:`match_phase`).
+        Name or id of the map's phase to refine; default the map's only
+        indexed phase. It must match the master pattern's phase
+        (:func:`~kikuchipy_geomdic.phases.check_phase`).
     navigation_mask
         Boolean array of the map's shape, ``True`` for points *not* to
         refine (kikuchipy's convention).
@@ -386,11 +179,13 @@ def reindex(
     if not isinstance(signal, EBSD):
         raise TypeError(f"signal must be a kikuchipy EBSD signal, not {type(signal).__name__}")
     if not isinstance(detector, EBSDDetector):
-        raise TypeError(f"detector must be a kikuchipy EBSDDetector, not {type(detector).__name__}")
-    _check_in_data(xmap)
-    nav = _nav_shape(signal)
-    if len(nav) not in (1, 2):
-        raise ValueError(f"The signal must be a 1D or 2D map, not navigation shape {nav}")
+        raise TypeError(
+            f"detector must be a kikuchipy EBSDDetector, not {type(detector).__name__}"
+        )
+    check_whole_map(xmap)
+    n_points = int(np.prod(navigation_shape(signal)))  # 1D or 2D maps only
+    # kikuchipy compares the crystal map's shape with this one exactly
+    nav = tuple(signal.axes_manager.navigation_shape[::-1])
     if tuple(xmap.shape) != nav:
         raise ValueError(
             f"The crystal map's shape {tuple(xmap.shape)} differs from the patterns' "
@@ -399,20 +194,18 @@ def reindex(
     sig = tuple(signal.axes_manager.signal_shape[::-1])
     if tuple(detector.shape) != sig:
         raise ValueError(f"The detector's shape {detector.shape} differs from the patterns' {sig}")
-    if detector.navigation_size not in (1, int(np.prod(nav))):
+    if detector.navigation_size not in (1, n_points):
         raise ValueError(
             f"The detector has {detector.navigation_size} PCs, neither one nor one per "
             f"map point of {nav}"
         )
-    phase_id = match_phase(xmap, master_pattern, phase)
+    phase_id = check_phase(xmap, master_pattern, phase)
 
     todo = usable_points(xmap, phase_id)
     if navigation_mask is not None:
         navigation_mask = np.asarray(navigation_mask, dtype=bool)
         if navigation_mask.shape != nav:
-            raise ValueError(
-                f"navigation_mask has shape {navigation_mask.shape}, the map {nav}"
-            )
+            raise ValueError(f"navigation_mask has shape {navigation_mask.shape}, the map {nav}")
         todo &= ~navigation_mask
     if not todo.any():
         raise ValueError("No point of the map can be refined (none indexed with the phase)")
@@ -435,7 +228,9 @@ def reindex(
     det = detector.deepcopy()
     if det.navigation_size > 1 and det.navigation_shape != nav:
         det.pc = det.pc.reshape(nav + (3,))
-    out = contextlib.nullcontext() if show_progressbar else contextlib.redirect_stdout(io.StringIO())
+    out = (
+        contextlib.nullcontext() if show_progressbar else contextlib.redirect_stdout(io.StringIO())
+    )
     with out:
         ref = signal.refine_orientation(kx, det, master_pattern, energy, **refine_kwargs)
     return _merge(xmap, ref, flat, phase_id, mp_phase)
@@ -461,7 +256,9 @@ def _merge(xmap, ref, flat, phase_id, mp_phase) -> CrystalMap:
     # Points with an invalid rotation (any phase) or a NaN pattern are not
     # indexed; masked-out points and other phases keep theirs
     with np.errstate(invalid="ignore"):
-        invalid_rot = ~(np.isfinite(q).all(axis=1) & (np.abs(np.linalg.norm(q, axis=1) - 1) < 1e-3))
+        invalid_rot = ~(
+            np.isfinite(q).all(axis=1) & (np.abs(np.linalg.norm(q, axis=1) - 1) < 1e-3)
+        )
     lost = bad | invalid_rot
     pid[lost] = -1
     q[lost | invalid_rot] = [1.0, 0.0, 0.0, 0.0]
@@ -472,4 +269,4 @@ def _merge(xmap, ref, flat, phase_id, mp_phase) -> CrystalMap:
         psi = np.zeros(n, dtype=np.int64)
         psi[ref.id] = ref.prop["pseudo_symmetry_index"]
         prop["pseudo_symmetry_index"] = psi
-    return _new_map(xmap, Rotation(q), pid, prop, phase_id, mp_phase)
+    return map_with_phase(xmap, Rotation(q), pid, prop, phase_id, mp_phase)

@@ -121,7 +121,8 @@ def run(argv, capsys):
 def digest(folder: Path) -> dict[str, tuple[str, int]]:
     return {
         p.name: (hashlib.sha256(p.read_bytes()).hexdigest(), p.stat().st_mtime_ns)
-        for p in sorted(folder.iterdir()) if p.is_file()
+        for p in sorted(folder.iterdir())
+        if p.is_file()
     }
 
 
@@ -153,13 +154,39 @@ def refined(data, tmp_path_factory):
         mp.setattr("kikuchipy_geomdic.refinement.refine_geometry_dic", _spy_result(store))
         stdout, stderr = io.StringIO(), io.StringIO()
         with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
-            code = cli.main([
-                "refine", str(d / "map.h5"), "--orientations", str(d / "map.ang"),
-                "--master-pattern", "Si", "--energy", "20", "--points", "20",
-                "--rois", "6", "6", "--max-iterations", "3", "--out", str(out),
-            ])
-    return dict(code=code, out=out, stdout=stdout.getvalue(), stderr=stderr.getvalue(),
-                before=before, result=store["result"], kwargs=store["kwargs"])
+            code = cli.main(
+                [
+                    "refine",
+                    str(d / "map.h5"),
+                    "--orientations",
+                    str(d / "map.ang"),
+                    "--master-pattern",
+                    "Si",
+                    "--energy",
+                    "20",
+                    "--points",
+                    "20",
+                    "--rois",
+                    "6",
+                    "6",
+                    "--max-iterations",
+                    "3",
+                    # The synthetic start is the paper's: zero-mean 0.3 deg
+                    "--orientation-prior",
+                    "0.3",
+                    "--out",
+                    str(out),
+                ]
+            )
+    return dict(
+        code=code,
+        out=out,
+        stdout=stdout.getvalue(),
+        stderr=stderr.getvalue(),
+        before=before,
+        result=store["result"],
+        kwargs=store["kwargs"],
+    )
 
 
 # --------------------------------------------------------------------- #
@@ -172,11 +199,38 @@ def refined(data, tmp_path_factory):
     [
         ([], ["demo", "refine", "reindex"]),
         (["demo"], ["--rows", "--points", "--out"]),
-        (["refine"], ["--orientations", "--master-pattern", "--energy", "--pc", "--convention",
-                      "--tilt", "--sample-tilt", "--azimuthal", "--px-size", "--binning",
-                      "--parameters", "--points", "--out", "--scheduler"]),
-        (["reindex"], ["--orientations", "--master-pattern", "--energy", "--detector",
-                       "--method", "--trust-region", "--out", "--scheduler"]),
+        (
+            ["refine"],
+            [
+                "--orientations",
+                "--master-pattern",
+                "--energy",
+                "--pc",
+                "--convention",
+                "--tilt",
+                "--sample-tilt",
+                "--azimuthal",
+                "--px-size",
+                "--binning",
+                "--parameters",
+                "--points",
+                "--out",
+                "--scheduler",
+            ],
+        ),
+        (
+            ["reindex"],
+            [
+                "--orientations",
+                "--master-pattern",
+                "--energy",
+                "--detector",
+                "--method",
+                "--trust-region",
+                "--out",
+                "--scheduler",
+            ],
+        ),
     ],
 )
 def test_help(capsys, command, options):
@@ -190,15 +244,30 @@ def test_help(capsys, command, options):
 
 def test_entry_points(tmp_path):
     """``python -m kikuchipy_geomdic`` and the console script both run."""
-    res = subprocess.run([sys.executable, "-m", "kikuchipy_geomdic", "refine", "--help"],
-                         capture_output=True, text=True, timeout=300)
+    res = subprocess.run(
+        [sys.executable, "-m", "kikuchipy_geomdic", "refine", "--help"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert res.returncode == 0 and "--master-pattern" in res.stdout
     script = Path(sys.executable).parent / "kikuchipy-geomdic"
     if not script.exists():
         pytest.skip("console script not installed beside the interpreter")
-    res = subprocess.run([str(script), "reindex", str(tmp_path / "missing.h5"),
-                          "--master-pattern", "Si", "--energy", "20"],
-                         capture_output=True, text=True, timeout=300)
+    res = subprocess.run(
+        [
+            str(script),
+            "reindex",
+            str(tmp_path / "missing.h5"),
+            "--master-pattern",
+            "Si",
+            "--energy",
+            "20",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert res.returncode == 2
     assert res.stderr.strip().splitlines() == [
         f"kikuchipy-geomdic: error: pattern file '{tmp_path / 'missing.h5'}' does not exist"
@@ -206,8 +275,22 @@ def test_entry_points(tmp_path):
 
 
 def test_demo_still_runs(tmp_path, capsys):
-    code, out, _ = run(["demo", "--rows", "3", "--cols", "3", "--size", "60",
-                        "--points", "9", "--out", tmp_path / "demo"], capsys)
+    code, out, _ = run(
+        [
+            "demo",
+            "--rows",
+            "3",
+            "--cols",
+            "3",
+            "--size",
+            "60",
+            "--points",
+            "9",
+            "--out",
+            tmp_path / "demo",
+        ],
+        capsys,
+    )
     assert code == 0
     assert out.startswith("Synthetic silicon map: 3 x 3 patterns of 60 x 60 px")
     assert "Mean misorientation to the true orientations" in out
@@ -250,9 +333,13 @@ def test_refine_detector_files_agree_in_every_convention(refined):
     out = refined["out"]
     geo = cv.geometry_from_summary(cv.read_summary(out / "summary.json"))
     whole = geo.detector()
-    for name, conv in [("detector.txt", "bruker"), ("detector_tsl.txt", "tsl"),
-                       ("detector_oxford.txt", "oxford"), ("detector_emsoft4.txt", "emsoft4"),
-                       ("detector_emsoft5.txt", "emsoft5")]:
+    for name, conv in [
+        ("detector.txt", "bruker"),
+        ("detector_tsl.txt", "tsl"),
+        ("detector_oxford.txt", "oxford"),
+        ("detector_emsoft4.txt", "emsoft4"),
+        ("detector_emsoft5.txt", "emsoft5"),
+    ]:
         assert cv.read_detector_header(out / name)["convention"] == conv
         det = cv.load_detector(out / name)
         assert det.navigation_shape == NAV
@@ -278,12 +365,34 @@ def test_refine_reads_files_only(refined, data):
 
 def test_refine_stored_orientations_and_pc_override(tmp_path, data, capsys):
     d, sm = data
-    code, out, err = run([
-        "refine", d / "map.h5", "--master-pattern", "Si", "--energy", "20",
-        "--pc", "0.52", "0.73", "0.63", "--convention", "tsl", "--px-size", "70",
-        "--parameters", "pcx", "pcy", "pcz", "--max-iterations", "1",
-        *FAST, "--out", tmp_path / "o",
-    ], capsys)
+    code, out, err = run(
+        [
+            "refine",
+            d / "map.h5",
+            "--master-pattern",
+            "Si",
+            "--energy",
+            "20",
+            "--pc",
+            "0.52",
+            "0.73",
+            "0.63",
+            "--convention",
+            "tsl",
+            "--px-size",
+            "70",
+            "--parameters",
+            "pcx",
+            "pcy",
+            "pcz",
+            "--max-iterations",
+            "1",
+            *FAST,
+            "--out",
+            tmp_path / "o",
+        ],
+        capsys,
+    )
     assert code == 0, err
     s = cv.read_summary(tmp_path / "o" / "summary.json")
     assert s["inputs"]["orientations"] == "pattern file"
@@ -310,14 +419,37 @@ def test_unusable_points_excluded_from_calibration(tmp_path, data, capsys):
     q[2] = np.nan
     pid = sm.start_xmap.phase_id.copy()
     pid[5] = -1
-    xmap = CrystalMap(Rotation(q), phase_id=pid, x=sm.start_xmap.x, y=sm.start_xmap.y,
-                      phase_list=sm.start_xmap.phases, scan_unit="um")
+    xmap = CrystalMap(
+        Rotation(q),
+        phase_id=pid,
+        x=sm.start_xmap.x,
+        y=sm.start_xmap.y,
+        phase_list=sm.start_xmap.phases,
+        scan_unit="um",
+    )
     orix_io.save(str(tmp_path / "holes.h5"), xmap)
-    code, out, err = run([
-        "refine", tmp_path / "nan.h5", "--orientations", tmp_path / "holes.h5",
-        "--master-pattern", "Si", "--energy", "20", "--parameters", "pcx", "pcy", "pcz",
-        "--max-iterations", "1", *FAST, "--out", tmp_path / "o",
-    ], capsys)
+    code, out, err = run(
+        [
+            "refine",
+            tmp_path / "nan.h5",
+            "--orientations",
+            tmp_path / "holes.h5",
+            "--master-pattern",
+            "Si",
+            "--energy",
+            "20",
+            "--parameters",
+            "pcx",
+            "pcy",
+            "pcz",
+            "--max-iterations",
+            "1",
+            *FAST,
+            "--out",
+            tmp_path / "o",
+        ],
+        capsys,
+    )
     assert code == 0, err
     assert "2 calibration candidate pattern(s) hold NaN or are blank" in err
     assert "only 15 usable point(s) for the 20 requested" in err
@@ -330,16 +462,36 @@ def test_too_few_usable_points(tmp_path, data, capsys):
     d, sm = data
     pid = np.full(20, -1)
     pid[[0, 7]] = sm.start_xmap.phase_id[0]
-    xmap = CrystalMap(sm.start_xmap.rotations, phase_id=pid, x=sm.start_xmap.x,
-                      y=sm.start_xmap.y, phase_list=sm.start_xmap.phases, scan_unit="um")
+    xmap = CrystalMap(
+        sm.start_xmap.rotations,
+        phase_id=pid,
+        x=sm.start_xmap.x,
+        y=sm.start_xmap.y,
+        phase_list=sm.start_xmap.phases,
+        scan_unit="um",
+    )
     orix_io.save(str(tmp_path / "two.h5"), xmap)
-    code, _, err = run([
-        "refine", d / "map.h5", "--orientations", tmp_path / "two.h5",
-        "--master-pattern", "Si", "--energy", "20", *FAST, "--out", tmp_path / "o",
-    ], capsys)
+    code, _, err = run(
+        [
+            "refine",
+            d / "map.h5",
+            "--orientations",
+            tmp_path / "two.h5",
+            "--master-pattern",
+            "Si",
+            "--energy",
+            "20",
+            *FAST,
+            "--out",
+            tmp_path / "o",
+        ],
+        capsys,
+    )
     assert code == 2
     assert "only 2 usable point(s) for the 20 requested" in err
-    assert err.strip().splitlines()[-1].startswith("kikuchipy-geomdic: error: 2 usable calibration")
+    assert (
+        err.strip().splitlines()[-1].startswith("kikuchipy-geomdic: error: 2 usable calibration")
+    )
     assert not (tmp_path / "o").exists()
 
 
@@ -351,11 +503,23 @@ def test_too_few_usable_points(tmp_path, data, capsys):
 def test_reindex_with_calibrated_detector(tmp_path, data, refined, capsys):
     d, sm = data
     before = digest(refined["out"])
-    code, out, err = run([
-        "reindex", d / "map.h5", "--orientations", d / "map_orix.h5",
-        "--master-pattern", "Si", "--energy", "20", "--detector", refined["out"],
-        "--out", tmp_path / "r",
-    ], capsys)
+    code, out, err = run(
+        [
+            "reindex",
+            d / "map.h5",
+            "--orientations",
+            d / "map_orix.h5",
+            "--master-pattern",
+            "Si",
+            "--energy",
+            "20",
+            "--detector",
+            refined["out"],
+            "--out",
+            tmp_path / "r",
+        ],
+        capsys,
+    )
     assert code == 0, err
     assert sorted(p.name for p in (tmp_path / "r").iterdir()) == sorted(cli.REINDEX_OUTPUTS)
     assert "Refining 20 orientation(s)" in out and "Refined 20 of 20 points" in out
@@ -378,11 +542,24 @@ def test_reindex_with_calibrated_detector(tmp_path, data, refined, capsys):
     assert digest(refined["out"]) == before and digest(d) == refined["before"]
 
     # The summary gives the same detector as detector.txt
-    code, _, err = run([
-        "reindex", d / "map.h5", "--orientations", d / "map_orix.h5", "--quiet",
-        "--master-pattern", d / "si_emsoft.h5", "--energy", "20",
-        "--detector", refined["out"] / "summary.json", "--out", tmp_path / "r2",
-    ], capsys)
+    code, _, err = run(
+        [
+            "reindex",
+            d / "map.h5",
+            "--orientations",
+            d / "map_orix.h5",
+            "--quiet",
+            "--master-pattern",
+            d / "si_emsoft.h5",
+            "--energy",
+            "20",
+            "--detector",
+            refined["out"] / "summary.json",
+            "--out",
+            tmp_path / "r2",
+        ],
+        capsys,
+    )
     assert code == 0, err
     again = orix_io.load(str(tmp_path / "r2" / "xmap_refined.h5"))
     assert misorientation(again, xmap).max() < 1e-3
@@ -394,38 +571,75 @@ def test_reindex_with_calibrated_detector(tmp_path, data, refined, capsys):
 
 
 ERRORS = {
-    "missing patterns": (["refine", "{b}/missing.h5"], "pattern file '{b}/missing.h5' does not exist"),
-    "truncated patterns": (["refine", "{b}/truncated.h5"], "cannot read patterns from '{b}/truncated.h5'"),
-    "corrupt patterns": (["refine", "{b}/corrupt.h5"], "cannot read patterns from '{b}/corrupt.h5'"),
-    "unreadable format": (["reindex", "{b}/notes.txt"], "cannot read patterns from '{b}/notes.txt'"),
+    "missing patterns": (
+        ["refine", "{b}/missing.h5"],
+        "pattern file '{b}/missing.h5' does not exist",
+    ),
+    "truncated patterns": (
+        ["refine", "{b}/truncated.h5"],
+        "cannot read patterns from '{b}/truncated.h5'",
+    ),
+    "corrupt patterns": (
+        ["refine", "{b}/corrupt.h5"],
+        "cannot read patterns from '{b}/corrupt.h5'",
+    ),
+    "unreadable format": (
+        ["reindex", "{b}/notes.txt"],
+        "cannot read patterns from '{b}/notes.txt'",
+    ),
     "single pattern": (["refine", "{b}/single.h5"], "holds a single pattern"),
-    "missing map": (["refine", "{d}/map.h5", "--orientations", "{b}/none.ang"],
-                    "orientation map '{b}/none.ang' does not exist"),
-    "corrupt map": (["refine", "{d}/map.h5", "--orientations", "{b}/corrupt.ang"],
-                    "cannot read orientations from '{b}/corrupt.ang'"),
-    "no stored orientations": (["refine", "{b}/no_orientations.h5"],
-                               "the pattern file holds no orientations"),
-    "map size": (["reindex", "{d}/map.h5", "--orientations", "{b}/small.ang"],
-                 "has shape (3, 5) (15 points), the patterns (4, 5)"),
-    "wrong phase (name)": (["refine", "{d}/map.h5", "--master-pattern", "BaTiO3"],
-                           "The master pattern's phase 'BaTiO3' (4mm"),
-    "wrong phase (file)": (["reindex", "{d}/map.h5", "--master-pattern", str(NI_MASTER_PATTERN)],
-                           "The master pattern's phase 'ni' (m-3m, a b c = 0.3524"),
-    "wrong energy (file)": (["refine", "{d}/map.h5", "--master-pattern", "{d}/si_emsoft.h5",
-                             "--energy", "30"], "was simulated for 19-20 kV, not for 30 kV"),
-    "wrong energy (file 2)": (["refine", "{d}/map.h5", "--master-pattern",
-                               str(NI_MASTER_PATTERN), "--energy", "15"],
-                              "was simulated for 20 kV, not for 15 kV"),
-    "missing master pattern": (["refine", "{d}/map.h5", "--master-pattern", "{b}/mp.h5"],
-                               "master pattern '{b}/mp.h5' does not exist"),
-    "detector of another map": (["reindex", "{d}/map.h5", "--detector", "{b}/other_detector.txt"],
-                                "the detector has 4 PCs, the map 20 points"),
-    "detector plus override": (["reindex", "{d}/map.h5", "--detector", "{b}/other_detector.txt",
-                                "--tilt", "3"], "--detector gives the whole geometry"),
-    "convention without pc": (["refine", "{d}/map.h5", "--convention", "tsl"],
-                              "--convention gives the convention of --pc"),
-    "bad method kwargs": (["reindex", "{d}/map.h5", "--method-kwargs", "{{nope"],
-                          "--method-kwargs is not JSON"),
+    "missing map": (
+        ["refine", "{d}/map.h5", "--orientations", "{b}/none.ang"],
+        "orientation map '{b}/none.ang' does not exist",
+    ),
+    "corrupt map": (
+        ["refine", "{d}/map.h5", "--orientations", "{b}/corrupt.ang"],
+        "cannot read orientations from '{b}/corrupt.ang'",
+    ),
+    "no stored orientations": (
+        ["refine", "{b}/no_orientations.h5"],
+        "the pattern file holds no orientations",
+    ),
+    "map size": (
+        ["reindex", "{d}/map.h5", "--orientations", "{b}/small.ang"],
+        "has shape (3, 5) (15 points), the patterns (4, 5)",
+    ),
+    "wrong phase (name)": (
+        ["refine", "{d}/map.h5", "--master-pattern", "BaTiO3"],
+        "The master pattern's phase 'BaTiO3' (4mm",
+    ),
+    "wrong phase (file)": (
+        ["reindex", "{d}/map.h5", "--master-pattern", str(NI_MASTER_PATTERN)],
+        "The master pattern's phase 'ni' (m-3m, a b c = 0.3524",
+    ),
+    "wrong energy (file)": (
+        ["refine", "{d}/map.h5", "--master-pattern", "{d}/si_emsoft.h5", "--energy", "30"],
+        "was simulated for 19-20 kV, not for 30 kV",
+    ),
+    "wrong energy (file 2)": (
+        ["refine", "{d}/map.h5", "--master-pattern", str(NI_MASTER_PATTERN), "--energy", "15"],
+        "was simulated for 20 kV, not for 15 kV",
+    ),
+    "missing master pattern": (
+        ["refine", "{d}/map.h5", "--master-pattern", "{b}/mp.h5"],
+        "master pattern '{b}/mp.h5' does not exist",
+    ),
+    "detector of another map": (
+        ["reindex", "{d}/map.h5", "--detector", "{b}/other_detector.txt"],
+        "the detector has 4 PCs, the map 20 points",
+    ),
+    "detector plus override": (
+        ["reindex", "{d}/map.h5", "--detector", "{b}/other_detector.txt", "--tilt", "3"],
+        "--detector gives the whole geometry",
+    ),
+    "convention without pc": (
+        ["refine", "{d}/map.h5", "--convention", "tsl"],
+        "--convention gives the convention of --pc",
+    ),
+    "bad method kwargs": (
+        ["reindex", "{d}/map.h5", "--method-kwargs", "{{nope"],
+        "--method-kwargs is not JSON",
+    ),
 }
 
 
@@ -452,8 +666,19 @@ def test_errors_are_one_line(case, data, bad_files, tmp_path, capsys):
 def test_existing_results_are_not_overwritten(refined, data, capsys):
     d, _ = data
     before = digest(refined["out"])
-    code, _, err = run(["refine", d / "map.h5", "--master-pattern", "Si", "--energy", "20",
-                        "--out", refined["out"]], capsys)
+    code, _, err = run(
+        [
+            "refine",
+            d / "map.h5",
+            "--master-pattern",
+            "Si",
+            "--energy",
+            "20",
+            "--out",
+            refined["out"],
+        ],
+        capsys,
+    )
     assert code == 2 and "already holds results" in err and "--overwrite" in err
     assert digest(refined["out"]) == before
 
@@ -476,8 +701,20 @@ def _interrupt_after(n_calls, original):
 
 
 def _refine_argv(d, out, *extra):
-    return ["refine", d / "map.h5", "--orientations", d / "map.ang", "--master-pattern", "Si",
-            "--energy", "20", *FAST, "--out", out, *extra]
+    return [
+        "refine",
+        d / "map.h5",
+        "--orientations",
+        d / "map.ang",
+        "--master-pattern",
+        "Si",
+        "--energy",
+        "20",
+        *FAST,
+        "--out",
+        out,
+        *extra,
+    ]
 
 
 def test_interrupt_during_calibration_writes_nothing(tmp_path, data, monkeypatch, capsys):
@@ -494,8 +731,9 @@ def test_interrupt_during_calibration_writes_nothing(tmp_path, data, monkeypatch
 
 def test_interrupt_while_writing_leaves_no_file(tmp_path, data, refined, monkeypatch, capsys):
     d, _ = data
-    monkeypatch.setattr("kikuchipy_geomdic.refinement.refine_geometry_dic",
-                        lambda *a, **k: refined["result"])
+    monkeypatch.setattr(
+        "kikuchipy_geomdic.refinement.refine_geometry_dic", lambda *a, **k: refined["result"]
+    )
     monkeypatch.setattr(cv, "save_detector", _interrupt_after(2, cv.save_detector))
     code, _, _ = run(_refine_argv(d, tmp_path / "o"), capsys)
     assert code == 130
@@ -507,8 +745,9 @@ def test_interrupt_keeps_previous_results(tmp_path, data, refined, monkeypatch, 
     out = tmp_path / "o"
     shutil.copytree(refined["out"], out)
     before = digest(out)
-    monkeypatch.setattr("kikuchipy_geomdic.refinement.refine_geometry_dic",
-                        lambda *a, **k: refined["result"])
+    monkeypatch.setattr(
+        "kikuchipy_geomdic.refinement.refine_geometry_dic", lambda *a, **k: refined["result"]
+    )
     monkeypatch.setattr(cv, "write_summary", _interrupt_after(0, cv.write_summary))
     code, _, _ = run(_refine_argv(d, out, "--overwrite"), capsys)
     assert code == 130
@@ -524,8 +763,13 @@ def test_ctrl_c_in_a_real_process(tmp_path, data):
     argv.remove("--quiet")
     argv[argv.index("--points") + 1] = "20"
     argv += ["--max-iterations", "10"]
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    proc = subprocess.Popen(
+        argv,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
     try:
         deadline = time.monotonic() + 240
         for line in proc.stdout:

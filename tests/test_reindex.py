@@ -22,14 +22,10 @@ from orix.crystal_map import CrystalMap
 from orix.quaternion import Rotation
 
 from kikuchipy_geomdic import synthetic
+from kikuchipy_geomdic.maps import flat_index, navigation_shape
+from kikuchipy_geomdic.phases import check_phase, phases_match, replace_phase
 from kikuchipy_geomdic.refinement import refine_geometry_dic
-from kikuchipy_geomdic.reindex import (
-    match_phase,
-    phases_match,
-    reindex,
-    replace_phase,
-    usable_points,
-)
+from kikuchipy_geomdic.reindex import reindex, usable_points
 
 NAV = (4, 5)
 #: Mean misorientation (deg) to the truth after reindexing at the true
@@ -49,14 +45,16 @@ def misorientation(xmap: CrystalMap, truth: CrystalMap) -> np.ndarray:
 def _map_like(xmap, quats=None, phase_id=None):
     q = xmap.rotations.data.copy() if quats is None else quats
     pid = xmap.phase_id.copy() if phase_id is None else phase_id
-    return CrystalMap(Rotation(q), phase_id=pid, x=xmap.x, y=xmap.y,
-                      phase_list=xmap.phases, scan_unit="um")
+    return CrystalMap(
+        Rotation(q), phase_id=pid, x=xmap.x, y=xmap.y, phase_list=xmap.phases, scan_unit="um"
+    )
 
 
 @pytest.fixture(scope="module")
 def refined(sm):
-    return reindex(sm.signal, sm.start_xmap, sm.detector, sm.master_pattern, sm.energy,
-                   show_progressbar=False)
+    return reindex(
+        sm.signal, sm.start_xmap, sm.detector, sm.master_pattern, sm.energy, show_progressbar=False
+    )
 
 
 def test_reindex_recovers_true_orientations(sm, refined):
@@ -76,8 +74,15 @@ def test_inputs_not_modified(sm, si_mp):
     signal = sm.signal.deepcopy()
     xmap = sm.start_xmap.deepcopy()
     det = sm.detector.deepcopy()
-    reindex(signal, xmap, det, si_mp, 20, show_progressbar=False, method_kwargs={
-        "method": "Nelder-Mead", "options": {"maxfev": 20}})
+    reindex(
+        signal,
+        xmap,
+        det,
+        si_mp,
+        20,
+        show_progressbar=False,
+        method_kwargs={"method": "Nelder-Mead", "options": {"maxfev": 20}},
+    )
     np.testing.assert_array_equal(signal.data, sm.signal.data)
     np.testing.assert_array_equal(xmap.rotations.data, sm.start_xmap.rotations.data)
     np.testing.assert_array_equal(xmap.phase_id, sm.start_xmap.phase_id)
@@ -90,8 +95,9 @@ def test_lazy_signal_stays_lazy_and_equals_eager(tmp_path, sm, refined):
     sm.signal.save(path)
     lazy = kp.load(path, lazy=True)
     assert isinstance(lazy.data, da.Array)
-    out = reindex(lazy, sm.start_xmap, sm.detector, sm.master_pattern, sm.energy,
-                  show_progressbar=False)
+    out = reindex(
+        lazy, sm.start_xmap, sm.detector, sm.master_pattern, sm.energy, show_progressbar=False
+    )
     assert lazy._lazy and isinstance(lazy.data, da.Array)
     np.testing.assert_array_equal(out.rotations.data, refined.rotations.data)
     np.testing.assert_array_equal(out.scores, refined.scores)
@@ -111,8 +117,15 @@ def test_unusable_points_excluded(sm):
     mask = np.zeros(NAV, dtype=bool)
     mask[2, 2] = True  # masked out by the user
     assert usable_points(xmap).sum() == 17
-    out = reindex(signal, xmap, sm.detector, sm.master_pattern, sm.energy,
-                  navigation_mask=mask, show_progressbar=False)
+    out = reindex(
+        signal,
+        xmap,
+        sm.detector,
+        sm.master_pattern,
+        sm.energy,
+        navigation_mask=mask,
+        show_progressbar=False,
+    )
     refined = out.refined.astype(bool)
     flat_nan, flat_mask = 3 * 5 + 4, 2 * 5 + 2
     assert np.flatnonzero(~refined).tolist() == [1, 2, 3, flat_mask, flat_nan]
@@ -121,7 +134,10 @@ def test_unusable_points_excluded(sm):
     np.testing.assert_array_equal(out.rotations.data[flat_mask], xmap.rotations.data[flat_mask])
     assert (out.scores[~refined] == 0).all()
     assert np.isfinite(out.rotations.data).all()
-    assert misorientation(out[out.refined == 1], sm.xmap[out.refined == 1]).mean() < MISORIENTATION_TOL
+    assert (
+        misorientation(out[out.refined == 1], sm.xmap[out.refined == 1]).mean()
+        < MISORIENTATION_TOL
+    )
 
 
 def test_phase_read_from_ang_is_matched(tmp_path, sm):
@@ -131,40 +147,65 @@ def test_phase_read_from_ang_is_matched(tmp_path, sm):
     with contextlib.redirect_stdout(io.StringIO()):
         xmap = orix_io.load(tmp_path / "map.ang")
     assert xmap.phases[xmap.phase_id[0]].point_group.name == "432"
-    with pytest.raises(ValueError, match="must be the same"), contextlib.redirect_stdout(io.StringIO()):
+    with (
+        pytest.raises(ValueError, match="must be the same"),
+        contextlib.redirect_stdout(io.StringIO()),
+    ):
         sm.signal.refine_orientation(xmap, sm.detector, sm.master_pattern, 20)
-    out = reindex(sm.signal, xmap, sm.detector, sm.master_pattern, sm.energy,
-                  show_progressbar=False, method_kwargs={"method": "Nelder-Mead",
-                                                         "options": {"maxfev": 30}})
+    out = reindex(
+        sm.signal,
+        xmap,
+        sm.detector,
+        sm.master_pattern,
+        sm.energy,
+        show_progressbar=False,
+        method_kwargs={"method": "Nelder-Mead", "options": {"maxfev": 30}},
+    )
     assert out.refined.all()
     assert out.phases[out.phase_id[0]].point_group.name == "m-3m"
 
 
 def test_master_pattern_of_another_phase_is_refused(sm, bto_mp):
-    with pytest.raises(ValueError, match="matches none of the map's phases"):
+    with pytest.raises(ValueError, match=r"phase 'BaTiO3' \(4mm.* does not match"):
         reindex(sm.signal, sm.start_xmap, sm.detector, bto_mp, 20, show_progressbar=False)
     assert not phases_match(sm.xmap.phases[0], bto_mp.phase)
     with pytest.raises(ValueError, match="does not match"):
-        match_phase(sm.xmap, bto_mp, phase="Si")
+        check_phase(sm.xmap, bto_mp, phase="Si")
 
 
-def test_phases_match_rules(sm):
-    si = sm.master_pattern.phase
-    other = si.deepcopy()
-    other.name = "silicon"
-    assert phases_match(si, other)  # same crystal, other name: lattice decides
-    nm = si.deepcopy()
-    nm.structure.lattice.setLatPar(0.5431, 0.5431, 0.5431)
-    assert phases_match(si, nm)  # nm against angstrom
-    nm.structure.lattice.setLatPar(0.3524, 0.3524, 0.3524)
-    assert not phases_match(si, nm)  # nickel's cell
+def test_phase_helpers_still_importable_from_reindex():
+    """Defined in phases only; reindex re-exports them for existing code."""
+    from kikuchipy_geomdic import phases, reindex
+
+    for name in ("phases_match", "match_phase", "replace_phase", "check_phase"):
+        assert getattr(reindex, name) is getattr(phases, name)
+
+
+def test_navigation_shape_and_flat_index(sm):
+    assert navigation_shape(sm.signal) == NAV == navigation_shape(sm.xmap)
+    assert navigation_shape(sm.signal.inav[:, 0]) == (1, NAV[1])
+    with pytest.raises(ValueError, match="1D or 2D"):
+        navigation_shape(sm.signal.inav[0, 0])
+    pts = np.array([[0, 0], [1, 2], [3, 4]])
+    np.testing.assert_array_equal(flat_index(pts, NAV), [0, 7, 19])
+    # The order of a whole crystal map's points and of the flattened data
+    flat = sm.signal.data.reshape(-1, *sm.signal.data.shape[-2:])
+    np.testing.assert_array_equal(flat[flat_index(pts, NAV)], sm.signal.data[pts[:, 0], pts[:, 1]])
+    assert flat_index(pts, NAV).tolist() == sm.xmap.id.reshape(NAV)[pts[:, 0], pts[:, 1]].tolist()
+    with pytest.raises(ValueError):
+        flat_index([[4, 0]], NAV)
 
 
 def test_shape_mismatches_and_options_refused(sm):
     small = sm.start_xmap[:3, :]
     with pytest.raises(ValueError, match="differs from the patterns"):
-        reindex(sm.signal, replace_phase(_map_like(small), 0, sm.master_pattern.phase),
-                sm.detector, sm.master_pattern, 20)
+        reindex(
+            sm.signal,
+            replace_phase(_map_like(small), 0, sm.master_pattern.phase),
+            sm.detector,
+            sm.master_pattern,
+            20,
+        )
     det = sm.detector.deepcopy()
     det.pc = det.pc[:3]
     with pytest.raises(ValueError, match="PCs"):
@@ -178,11 +219,13 @@ def test_shape_mismatches_and_options_refused(sm):
 
 def test_progress_output_only_when_asked(capsys, sm):
     kw = dict(method_kwargs={"method": "Nelder-Mead", "options": {"maxfev": 5}})
-    reindex(sm.signal, sm.start_xmap, sm.detector, sm.master_pattern, 20,
-            show_progressbar=False, **kw)
+    reindex(
+        sm.signal, sm.start_xmap, sm.detector, sm.master_pattern, 20, show_progressbar=False, **kw
+    )
     assert capsys.readouterr().out == ""
-    reindex(sm.signal, sm.start_xmap, sm.detector, sm.master_pattern, 20,
-            show_progressbar=True, **kw)
+    reindex(
+        sm.signal, sm.start_xmap, sm.detector, sm.master_pattern, 20, show_progressbar=True, **kw
+    )
     assert "Refining 20 orientation(s)" in capsys.readouterr().out
 
 
@@ -207,9 +250,12 @@ def test_writes_to_ang_and_orix_h5(tmp_path, sm, refined):
 def client():
     """A LocalCluster of two worker processes (one thread each)."""
     distributed = pytest.importorskip("distributed")
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                  dashboard_address=None) as cluster, \
-            distributed.Client(cluster) as c:
+    with (
+        distributed.LocalCluster(
+            n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+        ) as cluster,
+        distributed.Client(cluster) as c,
+    ):
         yield c
 
 
@@ -232,8 +278,14 @@ def _on_cluster(client, func):
 
 def test_reindex_on_cluster_equals_serial(small, client):
     def run():
-        return reindex(small.signal, small.start_xmap, small.detector,
-                       small.master_pattern, small.energy, show_progressbar=False)
+        return reindex(
+            small.signal,
+            small.start_xmap,
+            small.detector,
+            small.master_pattern,
+            small.energy,
+            show_progressbar=False,
+        )
 
     with distributed_off(client):
         serial = run()
@@ -248,8 +300,14 @@ def test_calibration_on_cluster_equals_serial(small, client):
     kw = dict(points=12, rois=(6, 6), max_iterations=2, show_progressbar=False)
 
     def run():
-        return refine_geometry_dic(small.signal, small.start_xmap, small.start_detector,
-                                   small.master_pattern, small.energy, **kw)
+        return refine_geometry_dic(
+            small.signal,
+            small.start_xmap,
+            small.start_detector,
+            small.master_pattern,
+            small.energy,
+            **kw,
+        )
 
     with distributed_off(client):
         serial = run()
@@ -278,11 +336,31 @@ def test_cli_scheduler_option_runs_on_the_cluster(tmp_path, small, client, capsy
     orix_io.save(str(tmp_path / "start.h5"), small.start_xmap)
     save_detector(small.detector, tmp_path / "detector.txt")
     with distributed_off(client):
-        serial = reindex(small.signal, small.start_xmap, small.detector,
-                         small.master_pattern, small.energy, show_progressbar=False)
-    argv = ["reindex", tmp_path / "map.h5", "--orientations", tmp_path / "start.h5",
-            "--master-pattern", "Si", "--energy", "20", "--detector", tmp_path / "detector.txt",
-            "--scheduler", client.scheduler.address, "--quiet", "--out", tmp_path / "o"]
+        serial = reindex(
+            small.signal,
+            small.start_xmap,
+            small.detector,
+            small.master_pattern,
+            small.energy,
+            show_progressbar=False,
+        )
+    argv = [
+        "reindex",
+        tmp_path / "map.h5",
+        "--orientations",
+        tmp_path / "start.h5",
+        "--master-pattern",
+        "Si",
+        "--energy",
+        "20",
+        "--detector",
+        tmp_path / "detector.txt",
+        "--scheduler",
+        client.scheduler.address,
+        "--quiet",
+        "--out",
+        tmp_path / "o",
+    ]
     code, workers = _on_cluster(client, lambda: cli.main([str(a) for a in argv]))
     assert code == 0, capsys.readouterr().err
     assert len(workers) >= 1

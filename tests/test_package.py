@@ -1,0 +1,152 @@
+"""Tests of the package as distributed: the wheel's contents and the
+registration of ``EBSD.refine_geometry_dic`` (issue: mergeable upstream).
+
+The wheel is built from a copy of the source tree (so that the build
+leaves nothing in the working tree) with ``pip wheel``, which fetches the
+build backend from PyPI or pip's cache.
+"""
+
+from __future__ import annotations
+
+import email
+import inspect
+import shutil
+import subprocess
+import sys
+import types
+import warnings
+import zipfile
+from pathlib import Path
+
+import pytest
+from kikuchipy.signals import EBSD, LazyEBSD
+
+import kikuchipy_geomdic
+from kikuchipy_geomdic.refinement import refine_geometry_dic
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "kikuchipy_geomdic"
+
+
+# --------------------------------------------------------------------- #
+# Wheel
+# --------------------------------------------------------------------- #
+
+
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory) -> zipfile.ZipFile:
+    tmp = tmp_path_factory.mktemp("wheel")
+    src = tmp / "src"
+    shutil.copytree(
+        ROOT,
+        src,
+        ignore=shutil.ignore_patterns(
+            ".git",
+            "build",
+            "dist",
+            "*.egg-info",
+            "__pycache__",
+            ".pytest_cache",
+            ".ruff_cache",
+            "_build",
+            "geomdic-demo",
+            ".venv",
+            ".ipynb_checkpoints",
+        ),
+    )
+    res = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", ".", "--no-deps", "-w", str(tmp / "dist")],
+        cwd=src,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert res.returncode == 0, res.stdout + res.stderr
+    (path,) = (tmp / "dist").glob("kikuchipy_geomdic-*.whl")
+    with zipfile.ZipFile(path) as z:
+        yield z
+
+
+def test_wheel_holds_the_package_data(wheel):
+    names = set(wheel.namelist())
+    data = [
+        "kikuchipy_geomdic/data/Si_dynamical.npz",
+        "kikuchipy_geomdic/data/BaTiO3_dynamical.npz",
+        "kikuchipy_geomdic/data/Si.cif",
+        "kikuchipy_geomdic/data/BaTiO3.cif",
+        "kikuchipy_geomdic/data/silicon_moving_screen/LICENSE",
+        "kikuchipy_geomdic/data/silicon_moving_screen/si_in.h5",
+        "kikuchipy_geomdic/data/silicon_moving_screen/si_out5mm.h5",
+        "kikuchipy_geomdic/data/silicon_moving_screen/si_out10mm.h5",
+    ]
+    missing = [n for n in data if n not in names]
+    assert not missing, missing
+    # Every data file of the source tree, and every module
+    for path in [*(PACKAGE / "data").rglob("*"), *PACKAGE.glob("*.py")]:
+        if path.is_file() and "__pycache__" not in path.parts:
+            name = path.relative_to(ROOT).as_posix()
+            assert name in names, name
+    # The data files are the same bytes
+    for name in data:
+        assert wheel.read(name) == (ROOT / name).read_bytes(), name
+    assert not any(n.startswith(("tests/", "tutorials/", "docs/")) for n in names)
+
+
+def test_wheel_metadata(wheel):
+    (meta_name,) = [n for n in wheel.namelist() if n.endswith(".dist-info/METADATA")]
+    meta = email.message_from_bytes(wheel.read(meta_name))
+    requires = meta.get_all("Requires-Dist")
+    default = [r for r in requires if "extra ==" not in r]
+    assert any(r.startswith("opencv-python-headless") for r in default), default
+    assert any(r.startswith("scikit-image") for r in default), default
+    assert meta["Requires-Python"] == ">=3.10"
+    (ep_name,) = [n for n in wheel.namelist() if n.endswith(".dist-info/entry_points.txt")]
+    assert "kikuchipy-geomdic = kikuchipy_geomdic.cli:main" in wheel.read(ep_name).decode()
+
+
+# --------------------------------------------------------------------- #
+# EBSD.refine_geometry_dic
+# --------------------------------------------------------------------- #
+
+
+def test_method_is_the_function_with_its_signature():
+    assert EBSD.refine_geometry_dic is refine_geometry_dic
+    assert LazyEBSD.refine_geometry_dic is refine_geometry_dic
+    params = inspect.signature(EBSD.refine_geometry_dic).parameters
+    assert list(params)[:5] == ["signal", "xmap", "detector", "master_pattern", "energy"]
+    assert "parameters" in params and "points" in params and "max_iterations" in params
+    assert not any(p.kind is p.VAR_KEYWORD for p in params.values())
+    # Bound to a signal, the signal is self
+    s = EBSD.__new__(EBSD)
+    bound = inspect.signature(s.refine_geometry_dic).parameters
+    assert list(bound)[0] == "xmap" and "points" in bound
+    assert EBSD.refine_geometry_dic.__doc__ == refine_geometry_dic.__doc__
+
+
+def test_registering_again_changes_nothing():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        kikuchipy_geomdic._register()
+    assert EBSD.refine_geometry_dic is refine_geometry_dic
+
+
+def test_registration_replaces_an_earlier_import_of_ours(monkeypatch):
+    """After a module reload (importlib.reload, IPython autoreload)."""
+    f = refine_geometry_dic
+    old = types.FunctionType(f.__code__, f.__globals__, f.__name__, f.__defaults__, f.__closure__)
+    old.__qualname__, old.__module__ = f.__qualname__, f.__module__
+    monkeypatch.setattr(EBSD, "refine_geometry_dic", old)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        kikuchipy_geomdic._register()
+    assert EBSD.refine_geometry_dic is refine_geometry_dic
+
+
+def test_registration_leaves_a_foreign_method_alone(monkeypatch):
+    def refine_geometry_dic(self, *args, **kwargs):  # e.g. a future kikuchipy's
+        return "kikuchipy's"
+
+    monkeypatch.setattr(EBSD, "refine_geometry_dic", refine_geometry_dic)
+    with pytest.warns(UserWarning, match="already has a refine_geometry_dic"):
+        kikuchipy_geomdic._register()
+    assert EBSD.refine_geometry_dic is refine_geometry_dic
