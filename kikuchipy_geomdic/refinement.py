@@ -20,9 +20,9 @@ is below its standard error.
 - *Gauge.* A rotation common to all orientations equals a change of the
   detector angles for every pattern. Without an ``orientation_prior``
   only the PC field across the map separates the two; with one, the
-  starting orientations' mean pins it. Parameters the map cannot
-  determine (standard error above :data:`DETERMINACY_LIMITS`) keep their
-  start value rather than follow the noise.
+  starting orientations' mean pins it. Parameters the map determines
+  poorly (standard error above :data:`DETERMINACY_LIMITS`) move only by
+  significant steps rather than follow the noise.
 - *Weights.* An ROI mean of ``c`` vectors weighs ``c`` times a vector, and
   each pattern has its own vector variance, estimated from its residuals
   (never below the median pattern's), so that a poor pattern (a grain
@@ -135,8 +135,10 @@ class GeometryRefinementResult:
         residual scatter. ``inf`` for tilt and sample_tilt when both are
         refined: only their difference is determined.
     undetermined
-        Parameters the map could not determine (standard error above
-        :data:`DETERMINACY_LIMITS`): kept at their start value.
+        Parameters the map determines only poorly (standard error above
+        :data:`DETERMINACY_LIMITS`; for tilt and sample_tilt, that of
+        their difference). The joint solver moved them only by
+        significant steps; unmoved, they keep their start value.
     solver
         "joint" or "paper".
     history
@@ -230,8 +232,10 @@ class GeometryRefinementResult:
             if true is not None:
                 line += " " + f.format(true[name]) + " " + ("{:>+10.6f}" if pc else "{:>+10.4f}").format(b - true[name])
             line += "  " + ("PC" if pc else "deg")
-            if name in self.undetermined:
-                line += "  not determined: kept"
+            if name in self.undetermined or (
+                name == TILT_DIFFERENCE and "tilt" in self.undetermined
+            ):
+                line += "  poorly determined" + (", kept" if a == b else "")
             lines.append(line)
         if any(not np.isfinite(self.standard_errors.get(n, 0)) for n in self.parameter_names):
             notes.append("tilt and sample_tilt: only their difference is determined")
@@ -381,9 +385,9 @@ def _check_inputs(signal, xmap, detector, master_pattern, phase, nav):
 #: Solvers of :func:`refine_geometry_dic`.
 SOLVERS = ("joint", "paper")
 
-#: A parameter whose standard error exceeds this (its unit) is not
-#: determined by the map: the joint solver keeps it at its start value
-#: instead of letting noise move it. PC: 1e-3 is what pattern-wise
+#: A parameter whose standard error exceeds this (its unit) is poorly
+#: determined by the map: the joint solver moves it only by significant
+#: steps (:data:`SIGNIFICANCE`), so noise cannot. PC: 1e-3 is what pattern-wise
 #: refinement reaches on single patterns; angles: 0.1 deg is the accuracy
 #: of a goniometer or detector-installation readout.
 DETERMINACY_LIMITS = {
@@ -395,6 +399,10 @@ DETERMINACY_LIMITS = {
     "sample_tilt": 0.1,
     "twist": 0.1,
 }
+
+#: A poorly determined parameter (standard error above its limit) is
+#: moved only by a step of at least this many standard errors.
+SIGNIFICANCE = 3.0
 
 #: Name of the determined combination of the two equivalent tilts.
 TILT_DIFFERENCE = "tilt-sample_tilt"
@@ -668,11 +676,14 @@ def _joint_loop(problem, geometry0, rotations0, prior, damping, max_iterations, 
         update, var = _joint_solve(
             problem, state["geometry"], state["field"], offsets, solved, prior_rad, 0.0
         )
-        # A parameter the map cannot determine at the present noise level
-        # is left where it is; far from the solution the residuals, and
-        # so the errors, are large, and only the PC may move at first
+        # A parameter the map determines only poorly moves only by a
+        # significant step, so that noise cannot walk it around
         se = dict(zip(solved, update.standard_errors))
-        weak = [n for n in solved if se[n] > DETERMINACY_LIMITS[n]]
+        step = dict(zip(solved, update.delta))
+        weak = [
+            n for n in solved
+            if se[n] > DETERMINACY_LIMITS[n] and abs(step[n]) < SIGNIFICANCE * se[n]
+        ]
         free = [n for n in solved if n not in weak]
         # Settled, and no parameter has become determinable since
         if (settled and weak == kept) or not free:
@@ -985,8 +996,9 @@ def refine_geometry_dic(
     dependence on the angles across the map (weak: it grows with the
     field of view) and a belief about the starting orientations
     (*orientation_prior*) separate them. A parameter whose standard error
-    exceeds :data:`DETERMINACY_LIMITS` is therefore not moved by the joint
-    solver: it keeps its start value and the result lists it in
+    exceeds :data:`DETERMINACY_LIMITS` is moved by the joint solver only
+    by a step of :data:`SIGNIFICANCE` standard errors or more, so that
+    noise cannot walk it around; the result lists it in
     :attr:`~GeometryRefinementResult.undetermined`, with its standard
     error.
 
@@ -1159,6 +1171,7 @@ def _result(problem, detector, signal, nav, geometry0, geometry, final_rot, fina
     if len(detector.navigation_shape) == 2 or nav[0] > 1:
         det.pc = det.pc.reshape(signal.axes_manager.navigation_shape[::-1] + (3,))
     field_after = state["field"]
+    se = _standard_errors(problem, state, prior)
     # Diagnostics of the average field, the paper's view of the map
     jac = analytic_jacobian(
         geometry, pts, field_after.positions, field_after.counts, names, problem.steps
@@ -1175,8 +1188,12 @@ def _result(problem, detector, signal, nav, geometry0, geometry, final_rot, fina
         points=pts,
         parameter_names=names,
         parameters=dict(zip(names, map(float, geometry.values(names)))),
-        standard_errors=_standard_errors(problem, state, prior),
-        undetermined=tuple(fixed),
+        standard_errors=se,
+        undetermined=tuple(
+            n for n in names
+            if se.get(TILT_DIFFERENCE if n in ("tilt", "sample_tilt") else n, 0)
+            > DETERMINACY_LIMITS[n]
+        ),
         solver=solver,
         history=history,
         jacobian=jac,

@@ -293,8 +293,17 @@ def test_demo_still_runs(tmp_path, capsys):
     )
     assert code == 0
     assert out.startswith("Synthetic silicon map: 3 x 3 patterns of 60 x 60 px")
-    assert "Mean misorientation to the true orientations" in out
+    assert "Mean misorientation to the truth, after" in out
     assert (tmp_path / "demo" / "convergence.png").is_file()
+    # The printed values, not just a header: the PC is recovered
+    import re
+
+    start, after = map(float, re.search(
+        r"Largest PC error on the map: (\S+) at the start, (\S+) after", out
+    ).groups())
+    assert after < start / 10 and after < 2e-3, out
+    pcx = re.search(r"^pcx +(\S+) +(\S+) +(\S+) +(\S+) +(\S+)", out, re.M).groups()
+    assert abs(float(pcx[4])) <= 3 * float(pcx[2]) + 1e-4, out
 
 
 # --------------------------------------------------------------------- #

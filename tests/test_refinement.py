@@ -103,8 +103,6 @@ def test_indexed_start_pc_and_honest_errors(indexed, indexed_result):
         moved = abs(got[name] - start[name])
         assert moved <= sigma or abs(got[name] - truth[name]) <= 3 * sigma, (name, moved, sigma)
     assert set(res.undetermined) <= {"tilt", "azimuthal", "sample_tilt"}
-    for name in res.undetermined:
-        assert got[name] == start[name]
     assert res.converged
 
 
@@ -236,13 +234,16 @@ def test_noisy_map(si_mp):
     assert max(abs(err[k]) for k in ("pcx", "pcy", "pcz")) <= 1e-3, err
     assert abs(err["combined_tilt"]) <= 0.1 and abs(err["azimuthal"]) <= 0.2, err
     assert mis <= 0.1
-    # Without the prior the angles are not determined by 49 noisy points
-    # over 500 um: they keep their start values, and say so
+    # Without the prior 49 noisy points over 500 um determine the angles
+    # poorly: they say so, and move only as far as the data say
     free = _refine(sm, orientation_prior=None)
     assert {"tilt", "azimuthal"} <= set(free.undetermined)
-    assert free.parameters["azimuthal"] == sm.start_geometry.azimuthal
     assert free.standard_errors["azimuthal"] > 0.1
-    assert "not determined" in repr(free)
+    assert "poorly determined" in repr(free)
+    true = sm.geometry.as_dict()
+    assert abs(free.parameters["azimuthal"] - true["azimuthal"]) <= (
+        3 * free.standard_errors["azimuthal"]
+    )
 
 
 def test_skimage_backend_same_geometry(poly, poly_result, monkeypatch):

@@ -1,0 +1,281 @@
+"""Joint DIC solver vs the paper's DIC solver vs kikuchipy's pattern-wise
+refiners (Nelder-Mead, differential evolution), on one CPU, two starts.
+
+Usage::
+
+    python benchmarks/bench_joint.py            # 10 x 10 Si map, 120 x 120 px, N = 100
+    python benchmarks/bench_joint.py --quick    # 4 x 4 map, 60 x 60 px, DE on 2 points
+
+Per start, one synthetic Si map (``synthetic.master_pattern("Si")``,
+orientations ``--orientations``, default "random"; true geometry
+``synthetic.default_geometry``; start geometry = truth +
+``synthetic.DEFAULT_PERTURBATION``) and one call of
+``validation.compare_methods`` with the Dask synchronous scheduler (and
+OpenCV / BLAS / numba limited to one thread), so every time is a
+single-CPU time as in the paper:
+
+- ``dic``: ``refine_geometry_dic`` defaults (joint solver; for the centred
+  start ``compare_methods`` adds ``orientation_prior=0.3``);
+- ``dic-paper``: the same with ``solver="paper"``;
+- ``nelder-mead``: kikuchipy ``refine_orientation_projection_center`` per
+  pattern, SciPy Nelder-Mead, trust region 3 deg / 0.05, PCs averaged,
+  orientations re-refined at the averaged geometry (``time_rerefine``, not
+  in ``time``);
+- ``differential-evolution``: the same with SciPy DE (``--de-maxiter``,
+  default 50) on ``--de-points`` points (default 10): its ``time_at_n`` is
+  **extrapolated** from its time per point (``extrapolated`` column).
+
+Starts:
+
+- ``indexed`` (A, realistic): orientations refined by kikuchipy at the
+  wrong start geometry, 1.0 deg RMS random error before that, dose 300
+  (Poisson shot noise);
+- ``centred`` (B, the paper's): 0.3 deg RMS random error centred to zero
+  mean, no noise.
+
+Besides ``compare_methods``' columns, the final rotations of every method
+are recorded (by wrapping the three functions ``compare_methods`` calls,
+in this script only) to give the misorientation with the rotation common
+to all points removed (``synthetic.common_rotation``: the mean rotation
+vector of ``~truth * rotation``), which is what no calibration can tell
+from a detector-angle error. ``speedup`` is ``time_at_n`` of the method
+over ``time_at_n`` of ``dic``; ``undetermined`` lists the parameters the
+DIC refinement kept at their start value (NM and DE cannot refine the
+angles at all).
+
+Writes ``<out>/joint_<start>.csv`` (``_quick`` suffix with --quick) and
+``<out>/joint_bench.log`` (everything printed).
+"""
+
+from __future__ import annotations
+
+import os
+
+for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import argparse  # noqa: E402
+import datetime  # noqa: E402
+import platform  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+from orix.quaternion import Rotation  # noqa: E402
+
+from kikuchipy_geomdic import synthetic  # noqa: E402
+from kikuchipy_geomdic import validation as val  # noqa: E402
+from kikuchipy_geomdic.refinement import calibration_points  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parent / "results"
+METHODS = ("dic", "dic-paper", "nelder-mead", "differential-evolution")
+STARTS = {
+    "indexed": dict(start="indexed", orientation_error=1.0, dose=300),
+    "centred": dict(start="centred", orientation_error=0.3, dose=None),
+}
+COLUMNS = [
+    "method", "n_points", "time", "time_per_point", "time_at_n", "extrapolated", "speedup",
+    "iterations", "max_pc_error", "err_pcx", "err_pcy", "err_pcz", "err_tilt_difference",
+    "err_azimuthal", "misorientation", "misorientation_nocommon", "common_rotation",
+    "misorientation_rerefined", "misorientation_rerefined_nocommon", "time_rerefine", "ncc",
+    "undetermined",
+]
+SHOW = [
+    "method", "n_points", "time", "time_per_point", "time_at_n", "extrapolated", "speedup",
+    "max_pc_error", "err_tilt_difference", "err_azimuthal", "misorientation",
+    "misorientation_nocommon", "common_rotation", "misorientation_rerefined",
+    "misorientation_rerefined_nocommon", "undetermined",
+]
+
+
+class _Tee:
+    def __init__(self, *streams):
+        self.streams = streams
+
+    def write(self, s):
+        for st in self.streams:
+            st.write(s)
+            st.flush()
+
+    def flush(self):
+        for st in self.streams:
+            st.flush()
+
+
+def _angles(a: Rotation, b: Rotation) -> np.ndarray:
+    return np.rad2deg((a * ~b).angle).ravel()
+
+
+def misorientations(rot: Rotation, truth: Rotation) -> tuple[float, float, float]:
+    """Mean misorientation (deg) to the truth, the same with the common
+    rotation removed, and the common rotation's angle (deg)."""
+    rot, truth = rot.flatten(), truth.flatten()
+    common = synthetic.common_rotation(rot, truth)
+    c = Rotation.from_axes_angles(common.axis, np.deg2rad(common.angle))
+    # rot = truth * T: remove the common right factor
+    return (
+        float(_angles(rot, truth).mean()),
+        float(_angles(rot * ~c, truth).mean()),
+        common.angle,
+    )
+
+
+class _Recorder:
+    """Wrap the functions compare_methods calls to keep each method's final
+    rotations and points (in call order, one record per method)."""
+
+    def __init__(self):
+        self.records: list[dict] = []
+        self._orig = {}
+
+    def __enter__(self):
+        o = self._orig
+        o["dic"] = val.refine_geometry_dic
+        o["pw"] = val._pattern_wise
+        o["ref"] = val._refine_orientations
+
+        def dic(*a, **k):
+            res = o["dic"](*a, **k)
+            rot = res.xmap.rotations
+            self.records.append(dict(
+                points=np.asarray(res.points), own=rot, rerefined=rot,
+                undetermined=" ".join(getattr(res, "undetermined", ()) or ()) or "-",
+            ))
+            return res
+
+        def pw(*a, **k):
+            xmap_r, det_r = o["pw"](*a, **k)
+            self.records.append(dict(
+                points=np.asarray(a[4]), own=xmap_r.rotations, undetermined="angles (fixed)"
+            ))
+            return xmap_r, det_r
+
+        def ref(*a, **k):
+            out = o["ref"](*a, **k)
+            self.records[-1]["rerefined"] = out.rotations
+            return out
+
+        val.refine_geometry_dic, val._pattern_wise, val._refine_orientations = dic, pw, ref
+        return self
+
+    def __exit__(self, *exc):
+        o = self._orig
+        val.refine_geometry_dic, val._pattern_wise, val._refine_orientations = (
+            o["dic"], o["pw"], o["ref"]
+        )
+
+
+def run_start(name, args, mp, side, out_dir, suffix):
+    kw = STARTS[name]
+    t0 = time.perf_counter()
+    sm = synthetic.synthetic_map(
+        mp, (side, side), orientations=args.orientations, shape=(args.size, args.size),
+        seed=args.seed, **kw,
+    )
+    t_map = time.perf_counter() - t0
+    nav = sm.geometry.navigation_shape
+    pts = calibration_points(nav, side * side)
+    flat = pts[:, 0] * nav[1] + pts[:, 1]
+    truth_all = sm.xmap.rotations.flatten()
+    m0, m0c, c0 = misorientations(sm.start_xmap.rotations.flatten()[flat], truth_all[flat])
+    d0 = val.mean_displacement(sm.start_geometry, sm.geometry)
+    print(
+        f"\n## Start {name!r}: {kw}, {side} x {side} map of {args.size} x {args.size} px, "
+        f"orientations {args.orientations!r}, seed {args.seed} (map built in {t_map:.0f} s)\n"
+        f"Start: displacement {100 * d0:.2f} % of the width; misorientation {m0:.3f} deg, "
+        f"{m0c:.3f} deg without the common rotation of {c0:.3f} deg",
+        flush=True,
+    )
+    with _Recorder() as rec:
+        rows = val.compare_methods(
+            sm,
+            points=side * side,
+            methods=METHODS,
+            method_points={"differential-evolution": args.de_points},
+            dic_configs={"dic-paper": dict(solver="paper")},
+            de_kwargs=dict(seed=0, maxiter=args.de_maxiter),
+            scheduler="synchronous",
+            verbose=True,
+        )
+    if len(rec.records) != len(rows):
+        raise RuntimeError(f"{len(rec.records)} rotation records for {len(rows)} methods")
+    t_dic = next(r for r in rows if r["method"] == "dic")["time_at_n"]
+    for r, rc in zip(rows, rec.records):
+        f = rc["points"][:, 0] * nav[1] + rc["points"][:, 1]
+        own, own_c, common = misorientations(rc["own"], truth_all[f])
+        if not np.isclose(own, r["misorientation"], rtol=1e-6, atol=1e-9):
+            raise RuntimeError(f"{r['method']}: recorded rotations do not match the row")
+        rr, rr_c, _ = misorientations(rc["rerefined"], truth_all[f])
+        r.update(
+            misorientation_nocommon=own_c, common_rotation=common,
+            misorientation_rerefined_nocommon=rr_c, speedup=r["time_at_n"] / t_dic,
+            undetermined=rc["undetermined"],
+        )
+    print(val.format_table(rows, SHOW), flush=True)
+    by = {r["method"]: r for r in rows}
+    print(
+        "\nDIC joint speed-up (time_at_n ratio; DE extrapolated from "
+        f"{by['differential-evolution']['n_points']} points): "
+        + ", ".join(f"{m} {by[m]['speedup']:.2f}x" for m in METHODS[1:]),
+        flush=True,
+    )
+    with open(out_dir / f"joint_{name}{suffix}.csv", "w") as fh:
+        fh.write(",".join(COLUMNS) + "\n")
+        for r in rows:
+            fh.write(",".join(str(r.get(c, "")) for c in COLUMNS) + "\n")
+    return rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument("--quick", action="store_true", help="4 x 4 map, 60 px, DE on 2 points")
+    ap.add_argument("--out", type=Path, default=RESULTS, help="output folder")
+    ap.add_argument("--points", type=int, default=100, help="calibration points (a square)")
+    ap.add_argument("--size", type=int, default=120, help="pattern side in px")
+    ap.add_argument("--de-points", type=int, default=10)
+    ap.add_argument("--de-maxiter", type=int, default=50,
+                    help="SciPy differential_evolution maxiter (its default 1000 took ~290 s "
+                         "per 60 x 60 pattern here)")
+    ap.add_argument("--orientations", default="random", choices=("random", "single", "variants"))
+    ap.add_argument("--starts", nargs="+", default=list(STARTS), choices=list(STARTS))
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+    if args.quick:
+        args.points, args.size, args.de_points = 16, 60, 2
+    suffix = "_quick" if args.quick else ""
+    try:
+        import cv2
+
+        cv2.setNumThreads(1)
+    except ImportError:
+        pass
+    args.out.mkdir(parents=True, exist_ok=True)
+    log = open(args.out / f"joint_bench{suffix}.log", "w")
+    stdout = sys.stdout
+    sys.stdout = _Tee(stdout, log)
+    try:
+        side = int(round(np.sqrt(args.points)))
+        print(
+            f"bench_joint.py {' '.join(argv if argv is not None else sys.argv[1:])}\n"
+            f"{datetime.datetime.now().isoformat(timespec='seconds')}; machine "
+            f"{platform.node()}, {os.cpu_count()} CPUs (shared), Python "
+            f"{platform.python_version()}; single-CPU timing (dask synchronous, 1 thread)\n"
+            f"DE: maxiter {args.de_maxiter}, {args.de_points} points, time extrapolated to "
+            f"{side * side}; time excludes the NM/DE re-refinement (time_rerefine)"
+        )
+        t_all = time.perf_counter()
+        mp = synthetic.master_pattern("Si")
+        for name in args.starts:
+            run_start(name, args, mp, side, args.out, suffix)
+        print(f"\nTotal {(time.perf_counter() - t_all) / 60:.1f} min")
+    finally:
+        sys.stdout = stdout
+        log.close()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
