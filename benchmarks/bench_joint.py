@@ -219,7 +219,7 @@ def run_start(name, args, mp, side, out_dir, suffix):
     if len(rec.records) != len(rows):
         raise RuntimeError(f"{len(rec.records)} rotation records for {len(rows)} methods")
     t_dic = next(r for r in rows if r["method"] == "dic")["time_at_n"]
-    for r, rc in zip(rows, rec.records):
+    for r, rc in zip(rows, rec.records, strict=True):
         f = rc["points"][:, 0] * nav[1] + rc["points"][:, 1]
         own = misorientations(rc["own"], truth_all[f])
         if not np.isclose(own["mean"], r["misorientation"], rtol=1e-6, atol=1e-9):
@@ -247,6 +247,21 @@ def run_start(name, args, mp, side, out_dir, suffix):
         for r in rows:
             fh.write(",".join(str(r.get(c, "")) for c in COLUMNS) + "\n")
     return rows
+
+
+def _code_version() -> str:
+    """HEAD commit and whether the package has uncommitted changes (read-only git)."""
+    import subprocess
+
+    root = Path(__file__).resolve().parent.parent
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root,
+                              capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "kikuchipy_geomdic"], cwd=root,
+                               capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head + (" + uncommitted changes to kikuchipy_geomdic" if dirty else "")
 
 
 def main(argv=None) -> int:
@@ -286,7 +301,8 @@ def main(argv=None) -> int:
             f"{platform.node()}, {os.cpu_count()} CPUs (shared), Python "
             f"{platform.python_version()}; single-CPU timing (dask synchronous, 1 thread)\n"
             f"DE: maxiter {args.de_maxiter}, {args.de_points} points, time extrapolated to "
-            f"{side * side}; time excludes the NM/DE re-refinement (time_rerefine)"
+            f"{side * side}; time excludes the NM/DE re-refinement (time_rerefine)\n"
+            f"Code: {_code_version()}"
         )
         t_all = time.perf_counter()
         mp = synthetic.master_pattern("Si")
