@@ -43,6 +43,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 from kikuchipy.detectors import EBSDDetector
+from orix.quaternion import Rotation
 
 __all__ = [
     "PARAMETERS",
@@ -57,6 +58,8 @@ __all__ = [
     "forward_map",
     "copy_detector",
     "update_detector",
+    "rotation_vectors",
+    "rotations_from_vectors",
 ]
 
 #: All geometry parameters, in the order of the paper's vector ``p`` plus
@@ -347,6 +350,50 @@ def forward_map(
         x_b = pc_b[..., 0] * ncols + t * v_b[..., 0] - 0.5
         y_b = pc_b[..., 1] * nrows - t * v_b[..., 1] - 0.5
     return x_b, y_b
+
+
+def rotation_vectors(rotations: Rotation) -> np.ndarray:
+    """Return rotation vectors (angle times axis) in radians.
+
+    Orientation changes ``g -> g * T`` (orix's right factor, a sample-frame
+    rotation) are small; their vectors add to first order.
+
+    Parameters
+    ----------
+    rotations
+        Rotations (any shape; flattened). ``q`` and ``-q`` give the same
+        vector, of length at most pi.
+
+    Returns
+    -------
+    vectors
+        Array (n, 3), accurate also for tiny angles.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from orix.quaternion import Rotation
+    >>> from kikuchipy_geomdic.geometry import rotation_vectors, rotations_from_vectors
+    >>> v = np.array([[0.0, 0.0, 0.1], [1e-9, 0.0, 0.0]])
+    >>> bool(np.allclose(rotation_vectors(rotations_from_vectors(v)), v, rtol=1e-9, atol=0))
+    True
+    """
+    q = np.asarray(Rotation(rotations).flatten().data, dtype=float)
+    q = np.where(q[:, :1] < 0, -q, q)
+    n = np.linalg.norm(q[:, 1:], axis=1)
+    angle = 2 * np.arctan2(n, q[:, 0])
+    factor = np.where(n > 0, angle / np.where(n > 0, n, 1.0), 2.0)
+    return q[:, 1:] * factor[:, None]
+
+
+def rotations_from_vectors(vectors: np.ndarray) -> Rotation:
+    """Return rotations from rotation vectors (n, 3) in radians; the
+    inverse of :func:`rotation_vectors`."""
+    v = np.asarray(vectors, dtype=np.float64).reshape(-1, 3)
+    half = np.linalg.norm(v, axis=1) / 2
+    # sin(x) / x without dividing by zero; exact to float64 for tiny x
+    sinc = np.sinc(half / np.pi) / 2
+    return Rotation(np.concatenate([np.cos(half)[:, None], v * sinc[:, None]], axis=1))
 
 
 def copy_detector(detector: EBSDDetector, **changes) -> EBSDDetector:

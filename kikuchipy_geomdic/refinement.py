@@ -70,6 +70,8 @@ from kikuchipy_geomdic.geometry import (
     MapGeometry,
     check_parameters,
     copy_detector,
+    rotation_vectors,
+    rotations_from_vectors,
 )
 from kikuchipy_geomdic.jacobian import (
     analytic_jacobian,
@@ -440,9 +442,17 @@ class _Problem:
         det = geometry.detector(self.points)
         return simulate_patterns(self.master_pattern, rotations, det, self.energy)
 
-    def measure(self, geometry: MapGeometry, rotations: Rotation) -> dsp.DisplacementField:
+    def compare(
+        self, geometry: MapGeometry, rotations: Rotation
+    ) -> tuple[dsp.DisplacementField, np.ndarray]:
+        """Displacement field and NCC (N,) of the patterns simulated at
+        *geometry* against the experimental ones, from one simulation."""
         sim = self.simulate(geometry, rotations)
-        return dsp.measure_displacements(sim, self.experimental, **self.dic_kwargs)
+        field = dsp.measure_displacements(sim, self.experimental, **self.dic_kwargs)
+        return field, _ncc(sim, self.experimental)
+
+    def measure(self, geometry: MapGeometry, rotations: Rotation) -> dsp.DisplacementField:
+        return self.compare(geometry, rotations)[0]
 
     def ncc(self, geometry: MapGeometry, rotations: Rotation) -> np.ndarray:
         """NCC (N,) of the patterns simulated at *geometry* with the
@@ -537,19 +547,6 @@ def _ncc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return (a * b).sum(axis=1) / np.sqrt((a * a).sum(axis=1) * (b * b).sum(axis=1))
 
 
-def _rotvec(rotations: Rotation) -> np.ndarray:
-    """Rotation vectors (n, 3) in radians, angles in [0, pi]."""
-    r = Rotation(rotations.data * np.where(rotations.a < 0, -1, 1)[..., None])
-    return np.nan_to_num(r.axis.data) * r.angle[:, None]
-
-
-def _from_rotvec(v: np.ndarray) -> Rotation:
-    v = np.asarray(v, dtype=np.float64).reshape(-1, 3)
-    angle = np.linalg.norm(v, axis=1)
-    axis = np.where(angle[:, None] > 0, v / np.where(angle > 0, angle, 1)[:, None], [0, 0, 1])
-    return Rotation.from_axes_angles(axis, angle)
-
-
 def _mean_displacement(f: dsp.DisplacementField) -> float:
     """Mean magnitude of the average field over ROIs with vectors, as a
     fraction of the detector width: the paper's objective."""
@@ -630,28 +627,48 @@ def _pattern_variances(
     return np.where(np.isfinite(var), np.maximum(var, floor), floor)
 
 
+def _linearise(problem, geometry, field, names):
+    """Per-pattern geometry and rotation Jacobians (N, 2R, K), (N, 2R, 3)
+    and displacements (N, 2R) at the measured positions."""
+    n = field.n_patterns
+    jg, jr = pattern_jacobian(geometry, problem.points, field.positions, names, problem.steps)
+    return jg.reshape(n, -1, len(names)), jr.reshape(n, -1, 3), field.u.reshape(n, -1)
+
+
 def _joint_solve(
-    problem: _Problem,
-    geometry: MapGeometry,
     field: dsp.DisplacementField,
+    linear: tuple[np.ndarray, np.ndarray, np.ndarray],
+    columns: Sequence[int],
     offsets: np.ndarray,
-    solved: Sequence[str],
     prior: float | None,
     damping: float,
 ) -> tuple[JointUpdate, np.ndarray]:
-    """One linear joint solve at *geometry* with the measured *field*;
-    also returns the per-pattern variances it weighted with."""
-    n = field.n_patterns
-    jg, jr = pattern_jacobian(geometry, problem.points, field.positions, solved, problem.steps)
-    jg = jg.reshape(n, -1, len(solved))
-    jr = jr.reshape(n, -1, 3)
-    b = field.u.reshape(n, -1)
+    """One joint solve with the geometry *columns* of *linear*; also
+    returns the per-pattern variances it weighted with."""
+    jg, jr, b = linear
+    jg = jg[..., list(columns)]
     # First without the prior, to learn each pattern's noise; then with
     # the weights in inverse pixels squared, the units of the prior
     first = solve_joint(jg, jr, b, _pattern_weights(field, None), damping=damping)
     var = _pattern_variances(field, jg, jr, first)
     w = _pattern_weights(field, var)
     return solve_joint(jg, jr, b, w, prior=prior, offsets=offsets, damping=damping), var
+
+
+def _step_record(it, names, geometry, ncc_before, ncc_after, before, after, damping,
+                 accepted, **extra) -> dict[str, Any]:
+    """One entry of :attr:`GeometryRefinementResult.history`."""
+    return dict(
+        iteration=it,
+        parameters=dict(zip(names, map(float, geometry.values(names)))),
+        ncc_before=ncc_before,
+        ncc_after=ncc_after,
+        displacement_before=before,
+        displacement_after=after,
+        damping=damping,
+        accepted=accepted,
+        **extra,
+    )
 
 
 def _joint_loop(problem, geometry0, rotations0, prior, damping, max_iterations, say):
@@ -663,19 +680,18 @@ def _joint_loop(problem, geometry0, rotations0, prior, damping, max_iterations, 
 
     def offsets_of(rot):
         _, dq = problem.variants(rot)
-        return _rotvec(dq)
+        return rotation_vectors(dq)
 
-    field = problem.measure(geometry0, rotations0)
-    state = dict(geometry=geometry0, rotations=rotations0, field=field)
-    state["ncc"] = float(np.mean(problem.ncc(geometry0, rotations0)))
+    field, scores = problem.compare(geometry0, rotations0)
+    state = dict(geometry=geometry0, rotations=rotations0, field=field, scores=scores)
     field_before = field
     history, converged, lam = [], False, damping
     settled, kept, weak = False, None, []
+    everything = range(len(solved))
     for it in range(max_iterations):
         offsets = offsets_of(state["rotations"])
-        update, var = _joint_solve(
-            problem, state["geometry"], state["field"], offsets, solved, prior_rad, 0.0
-        )
+        linear = _linearise(problem, state["geometry"], state["field"], solved)
+        update, var = _joint_solve(state["field"], linear, everything, offsets, prior_rad, 0.0)
         # A parameter the map determines only poorly moves only by a
         # significant step, so that noise cannot walk it around
         se = dict(zip(solved, update.standard_errors))
@@ -693,47 +709,42 @@ def _joint_loop(problem, geometry0, rotations0, prior, damping, max_iterations, 
             if np.array_equal(rot.data, state["rotations"].data) or not free:
                 converged = True
                 break
-            state.update(rotations=rot, field=problem.measure(state["geometry"], rot))
+            field, scores = problem.compare(state["geometry"], rot)
+            state.update(rotations=rot, field=field, scores=scores)
             offsets = offsets_of(rot)
+            linear = _linearise(problem, state["geometry"], field, solved)
         settled, kept = False, weak
+        columns = [solved.index(n) for n in free]
         # Steps are judged by the objective of the solve: each pattern
         # weighted by its own precision, so one failed pattern cannot
         # veto a step
         before = _rms_displacement(state["field"], var)
+        ncc_before = float(np.mean(state["scores"]))
         accepted = False
         for _ in range(MAX_TRIALS):
-            update, _ = _joint_solve(
-                problem, state["geometry"], state["field"], offsets, free, prior_rad, lam
-            )
+            update, _ = _joint_solve(state["field"], linear, columns, offsets, prior_rad, lam)
             delta = _expand(dict(zip(free, update.delta)), split)
             geo = state["geometry"].updated(delta)
-            rot = state["rotations"] * _from_rotvec(update.rotations)
-            fld = problem.measure(geo, rot)
+            rot = state["rotations"] * rotations_from_vectors(update.rotations)
+            fld, scores = problem.compare(geo, rot)
             after = _rms_displacement(fld, var)
             accepted = bool(after < before)
-            ncc = float(np.mean(problem.ncc(geo, rot))) if accepted else float("nan")
+            ncc = float(np.mean(scores)) if accepted else float("nan")
             history.append(
-                dict(
-                    iteration=it,
-                    parameters=dict(zip(names, map(float, geo.values(names)))),
-                    ncc_before=state["ncc"],
-                    ncc_after=ncc,
-                    displacement_before=before,
-                    displacement_after=after,
-                    damping=lam,
-                    accepted=accepted,
+                _step_record(
+                    it, names, geo, ncc_before, ncc, before, after, lam, accepted,
                     standard_errors=dict(zip(free, map(float, update.standard_errors))),
                     kept=tuple(weak),
                 )
             )
             say(
                 f"  iteration {it}: RMS displacement {100 * before:.4f} -> "
-                f"{100 * after:.4f} % of width, NCC {state['ncc']:.4f} -> {ncc:.4f}, "
+                f"{100 * after:.4f} % of width, NCC {ncc_before:.4f} -> {ncc:.4f}, "
                 f"{'accepted' if accepted else 'rejected'}"
                 + (f" (kept: {', '.join(weak)})" if weak else "")
             )
             if accepted:
-                state = dict(geometry=geo, rotations=rot, field=fld, ncc=ncc)
+                state = dict(geometry=geo, rotations=rot, field=fld, scores=scores)
                 lam = lam / 10
                 break
             lam = max(10 * lam, 1e-3)
@@ -767,8 +778,8 @@ def _anchor(problem: _Problem, rotations: Rotation) -> Rotation:
     small = dq.angle < np.deg2rad(5)
     if not small.any():
         return rotations
-    mean = _rotvec(dq)[small].mean(axis=0)
-    return rotations * ~_from_rotvec(mean)
+    mean = rotation_vectors(dq)[small].mean(axis=0)
+    return rotations * ~rotations_from_vectors(mean)
 
 
 def _paper_loop(problem, geometry0, rotations0, jacobian, damping, max_iterations,
@@ -806,15 +817,8 @@ def _paper_loop(problem, geometry0, rotations0, jacobian, damping, max_iteration
                 ncc = float(np.mean(scores))
                 accepted = bool(ncc > state["ncc"] - ncc_tolerance)
             history.append(
-                dict(
-                    iteration=it,
-                    parameters=dict(zip(names, map(float, geo.values(names)))),
-                    ncc_before=state["ncc"],
-                    ncc_after=ncc,
-                    displacement_before=state["disp"],
-                    displacement_after=disp,
-                    damping=lam,
-                    accepted=accepted,
+                _step_record(
+                    it, names, geo, state["ncc"], ncc, state["disp"], disp, lam, accepted
                 )
             )
             say(
@@ -1038,10 +1042,9 @@ def refine_geometry_dic(
     if any(step_all[n] <= 0 for n in names):
         raise ValueError("Finite-difference steps must be positive")
     ref_kw = dict(refine_kwargs or {})
-    ops = pseudo_symmetry_ops
-    if ops is None:
-        ops = ref_kw.pop("pseudo_symmetry_ops", None)
-    ref_kw.pop("pseudo_symmetry_ops", None)
+    ops = ref_kw.pop("pseudo_symmetry_ops", None)
+    if pseudo_symmetry_ops is not None:
+        ops = pseudo_symmetry_ops
 
     pts = _points(points, usable_points(xmap, phase_id).reshape(nav), nav)
     n_free = len(_solved_parameters(names)[0])
@@ -1087,11 +1090,9 @@ def refine_geometry_dic(
             0.0 if damping is None else damping, max_iterations, say,
         )
         geometry = state["geometry"]
-        final_rot = state["rotations"]
+        final_rot, final_scores = state["rotations"], state["scores"]
         if refine_kwargs is not None:
             final_rot, final_scores = problem.refine_orientations(geometry, final_rot, binning=1)
-        else:
-            final_scores = problem.ncc(geometry, final_rot)
     else:
         state, history, converged, field_before, fixed = _paper_loop(
             problem, geometry0, start_rot, jacobian, 1e-3 if damping is None else damping,
@@ -1135,8 +1136,9 @@ def _standard_errors(problem, state, prior) -> dict[str, float]:
     solved, split = _solved_parameters(names)
     prior_rad = None if prior is None else np.deg2rad(prior) / np.sqrt(3)
     _, dq = problem.variants(state["rotations"])
+    linear = _linearise(problem, state["geometry"], state["field"], solved)
     update, _ = _joint_solve(
-        problem, state["geometry"], state["field"], _rotvec(dq), solved, prior_rad, 0.0
+        state["field"], linear, range(len(solved)), rotation_vectors(dq), prior_rad, 0.0
     )
     se = dict(zip(solved, map(float, update.standard_errors)))
     if "tilt" in names or "sample_tilt" in names:

@@ -56,7 +56,12 @@ from orix.crystal_map import CrystalMap, Phase, PhaseList
 from orix.quaternion import Rotation
 from scipy import ndimage
 
-from kikuchipy_geomdic.geometry import MapGeometry, copy_detector
+from kikuchipy_geomdic.geometry import (
+    MapGeometry,
+    copy_detector,
+    rotation_vectors,
+    rotations_from_vectors,
+)
 from kikuchipy_geomdic.simulation import check_master_pattern, simulate_patterns
 
 __all__ = [
@@ -287,10 +292,7 @@ def perturb_rotations(
     v = rng.normal(scale=np.deg2rad(scatter) / np.sqrt(3), size=(rotations.size, 3))
     if centred and rotations.size > 1:
         v -= v.mean(axis=0)
-    angle = np.linalg.norm(v, axis=1)
-    safe = np.where(angle > 0, angle, 1.0)[:, None]
-    axis = np.where(angle[:, None] > 0, v / safe, [0.0, 0.0, 1.0])
-    return rotations * Rotation.from_axes_angles(axis, angle)
+    return rotations * rotations_from_vectors(v)
 
 
 class CommonRotation(NamedTuple):
@@ -318,28 +320,6 @@ def _rotations_of(r) -> Rotation:
     if isinstance(r, CrystalMap):
         return r.rotations.flatten()
     return Rotation(r).flatten()
-
-
-def rotation_vectors(rotations: Rotation) -> np.ndarray:
-    """Return rotation vectors (angle times axis) in radians.
-
-    Parameters
-    ----------
-    rotations
-        Rotations (any shape; flattened). ``q`` and ``-q`` give the same
-        vector, of length at most pi.
-
-    Returns
-    -------
-    vectors
-        Array (n, 3), accurate also for tiny angles.
-    """
-    q = np.asarray(Rotation(rotations).flatten().data, dtype=float)
-    q = np.where(q[:, :1] < 0, -q, q)
-    n = np.linalg.norm(q[:, 1:], axis=1)
-    angle = 2 * np.arctan2(n, q[:, 0])
-    factor = np.where(n > 0, angle / np.where(n > 0, n, 1.0), 2.0)
-    return q[:, 1:] * factor[:, None]
 
 
 def common_rotation(
