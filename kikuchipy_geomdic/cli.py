@@ -124,7 +124,7 @@ def _demo(args: argparse.Namespace) -> int:
     from kikuchipy_geomdic.refinement import refine_geometry_dic
     from kikuchipy_geomdic.validation import centred_prior
 
-    dose = None if args.paper else args.dose
+    dose = None if args.paper or not args.dose else args.dose
     start = "centred" if args.paper else "indexed"
     error = 0.3 if args.paper else 1.0
     t0 = time.perf_counter()
@@ -1074,7 +1074,7 @@ def _parser() -> argparse.ArgumentParser:
         "--dose",
         type=float,
         default=300,
-        help="shot noise, mean counts per pixel (default 300)",
+        help="shot noise, mean counts per pixel (default 300; 0: noise-free)",
     )
     demo.add_argument(
         "--paper",
