@@ -687,6 +687,11 @@ def _joint_loop(problem, geometry0, rotations0, prior, damping, max_iterations, 
     field_before = field
     history, converged, lam = [], False, damping
     settled, kept, weak = False, None, []
+    # Far from the solution the standard errors of a small map are not
+    # to be trusted (measured: a 4 x 4 map moved the azimuthal angle by
+    # 3.9 deg "at 3.2 sigma", away from the truth), so poorly determined
+    # parameters wait until the determined ones have settled
+    hold = True
     everything = range(len(solved))
     for it in range(max_iterations):
         offsets = offsets_of(state["rotations"])
@@ -696,10 +701,10 @@ def _joint_loop(problem, geometry0, rotations0, prior, damping, max_iterations, 
         # significant step, so that noise cannot walk it around
         se = dict(zip(solved, update.standard_errors))
         step = dict(zip(solved, update.delta))
-        weak = [
-            n for n in solved
-            if se[n] > DETERMINACY_LIMITS[n] and abs(step[n]) < SIGNIFICANCE * se[n]
-        ]
+        poor = [n for n in solved if se[n] > DETERMINACY_LIMITS[n]]
+        if hold and (settled or len(poor) == len(solved)):
+            hold = False
+        weak = poor if hold else [n for n in poor if abs(step[n]) < SIGNIFICANCE * se[n]]
         free = [n for n in solved if n not in weak]
         # Settled, and no parameter has become determinable since
         if (settled and weak == kept) or not free:
@@ -728,7 +733,10 @@ def _joint_loop(problem, geometry0, rotations0, prior, damping, max_iterations, 
             rot = state["rotations"] * rotations_from_vectors(update.rotations)
             fld, scores = problem.compare(geo, rot)
             after = _rms_displacement(fld, var)
-            accepted = bool(after < before)
+            accepted = bool(after < before) or (
+                after < (1 + MIN_FALL) * before
+                and _consistent(problem, geo, fld, free, offsets_of(rot), prior_rad)
+            )
             ncc = float(np.mean(scores)) if accepted else float("nan")
             history.append(
                 _step_record(
@@ -757,6 +765,22 @@ def _joint_loop(problem, geometry0, rotations0, prior, damping, max_iterations, 
     else:
         converged = settled
     return state, history, converged, field_before, tuple(weak)
+
+
+def _consistent(problem, geometry, field, free, offsets, prior) -> bool:
+    """Whether, from *geometry*, no parameter in *free* would move by a
+    significant step.
+
+    Near the solution a step in a poorly determined parameter changes the
+    RMS displacement by less than re-measuring it does (other features
+    are found in each simulation; measured on a 10 x 10 map: a step of
+    five standard errors that brought both angles to the truth raised the
+    RMS by 0.3 %), so such a step is judged by where it lands instead.
+    """
+    linear = _linearise(problem, geometry, field, free)
+    update, _ = _joint_solve(field, linear, range(len(free)), offsets, prior, 0.0)
+    se = np.where(np.isfinite(update.standard_errors), update.standard_errors, np.inf)
+    return bool(np.all(np.abs(update.delta) < SIGNIFICANCE * se))
 
 
 def _within_errors(update: JointUpdate) -> bool:
