@@ -406,6 +406,8 @@ DETERMINACY_LIMITS = {
 #: moved only by a step of at least this many standard errors.
 SIGNIFICANCE = 3.0
 
+_PC = ("pcx", "pcy", "pcz")
+
 #: Name of the determined combination of the two equivalent tilts.
 TILT_DIFFERENCE = "tilt-sample_tilt"
 
@@ -690,7 +692,9 @@ def _joint_loop(problem, geometry0, rotations0, prior, damping, max_iterations, 
     # Far from the solution the standard errors of a small map are not
     # to be trusted (measured: a 4 x 4 map moved the azimuthal angle by
     # 3.9 deg "at 3.2 sigma", away from the truth), so poorly determined
-    # parameters wait until the determined ones have settled
+    # angles wait until the PC has settled. The PC moves from the start
+    # however poorly it is determined: the RMS judges its steps, and a
+    # start 2 % off must not be kept because its sigma there is large
     hold = True
     everything = range(len(solved))
     for it in range(max_iterations):
@@ -702,9 +706,11 @@ def _joint_loop(problem, geometry0, rotations0, prior, damping, max_iterations, 
         se = dict(zip(solved, update.standard_errors))
         step = dict(zip(solved, update.delta))
         poor = [n for n in solved if se[n] > DETERMINACY_LIMITS[n]]
-        if hold and (settled or len(poor) == len(solved)):
-            hold = False
-        weak = poor if hold else [n for n in poor if abs(step[n]) < SIGNIFICANCE * se[n]]
+        hold = hold and not settled
+        if hold:
+            weak = [n for n in poor if n not in _PC]
+        else:
+            weak = [n for n in poor if abs(step[n]) < SIGNIFICANCE * se[n]]
         free = [n for n in solved if n not in weak]
         # Settled, and no parameter has become determinable since
         if (settled and weak == kept) or not free:
