@@ -10,7 +10,7 @@ Per start, one synthetic Si map (``synthetic.master_pattern("Si")``,
 orientations ``--orientations``, default "random"; true geometry
 ``synthetic.default_geometry``; start geometry = truth +
 ``synthetic.DEFAULT_PERTURBATION``) and one call of
-``validation.compare_methods`` with the Dask synchronous scheduler (and
+``comparison.compare_methods`` with the Dask synchronous scheduler (and
 OpenCV / BLAS / numba limited to one thread), so every time is a
 single-CPU time as in the paper:
 
@@ -68,8 +68,12 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 from orix.quaternion import Rotation  # noqa: E402
 
-from kikuchipy_geomdic import synthetic  # noqa: E402
-from kikuchipy_geomdic import validation as val  # noqa: E402
+from kikuchipy_geomdic import (
+    comparison,  # noqa: E402
+    study,  # noqa: E402
+    synthetic,  # noqa: E402
+)
+from kikuchipy_geomdic.maps import flat_index  # noqa: E402
 from kikuchipy_geomdic.refinement import calibration_points  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -147,12 +151,12 @@ class _Recorder:
 
     def __enter__(self):
         o = self._orig
-        o["dic"] = val.refine_geometry_dic
-        o["pw"] = val._pattern_wise
-        o["ref"] = val._refine_orientations
+        o["dic"] = synthetic.SyntheticMap.refine_geometry
+        o["pw"] = comparison._pattern_wise
+        o["ref"] = comparison.refine_orientations
 
-        def dic(*a, **k):
-            res = o["dic"](*a, **k)
+        def dic(sm, **k):
+            res = o["dic"](sm, **k)
             rot = res.xmap.rotations
             self.records.append(dict(
                 points=np.asarray(res.points), own=rot, rerefined=rot,
@@ -172,14 +176,14 @@ class _Recorder:
             self.records[-1]["rerefined"] = out.rotations
             return out
 
-        val.refine_geometry_dic, val._pattern_wise, val._refine_orientations = dic, pw, ref
+        synthetic.SyntheticMap.refine_geometry = dic
+        comparison._pattern_wise, comparison.refine_orientations = pw, ref
         return self
 
     def __exit__(self, *exc):
         o = self._orig
-        val.refine_geometry_dic, val._pattern_wise, val._refine_orientations = (
-            o["dic"], o["pw"], o["ref"]
-        )
+        synthetic.SyntheticMap.refine_geometry = o["dic"]
+        comparison._pattern_wise, comparison.refine_orientations = o["pw"], o["ref"]
 
 
 def run_start(name, args, mp, side, out_dir, suffix):
@@ -192,10 +196,10 @@ def run_start(name, args, mp, side, out_dir, suffix):
     t_map = time.perf_counter() - t0
     nav = sm.geometry.navigation_shape
     pts = calibration_points(nav, side * side)
-    flat = pts[:, 0] * nav[1] + pts[:, 1]
+    flat = flat_index(pts, nav)
     truth_all = sm.xmap.rotations.flatten()
     m0 = misorientations(sm.start_xmap.rotations.flatten()[flat], truth_all[flat])
-    d0 = val.mean_displacement(sm.start_geometry, sm.geometry)
+    d0 = study.mean_displacement(sm.start_geometry, sm.geometry)
     print(
         f"\n## Start {name!r}: {kw}, {side} x {side} map of {args.size} x {args.size} px, "
         f"orientations {args.orientations!r}, seed {args.seed} (map built in {t_map:.0f} s)\n"
@@ -206,7 +210,7 @@ def run_start(name, args, mp, side, out_dir, suffix):
         flush=True,
     )
     with _Recorder() as rec:
-        rows = val.compare_methods(
+        rows = comparison.compare_methods(
             sm,
             points=side * side,
             methods=METHODS,
@@ -220,7 +224,7 @@ def run_start(name, args, mp, side, out_dir, suffix):
         raise RuntimeError(f"{len(rec.records)} rotation records for {len(rows)} methods")
     t_dic = next(r for r in rows if r["method"] == "dic")["time_at_n"]
     for r, rc in zip(rows, rec.records, strict=True):
-        f = rc["points"][:, 0] * nav[1] + rc["points"][:, 1]
+        f = flat_index(rc["points"], nav)
         own = misorientations(rc["own"], truth_all[f])
         if not np.isclose(own["mean"], r["misorientation"], rtol=1e-6, atol=1e-9):
             raise RuntimeError(f"{r['method']}: recorded rotations do not match the row")
@@ -234,7 +238,7 @@ def run_start(name, args, mp, side, out_dir, suffix):
             speedup=r["time_at_n"] / t_dic,
             undetermined=rc["undetermined"],
         )
-    print(val.format_table(rows, SHOW), flush=True)
+    print(study.format_table(rows, SHOW), flush=True)
     by = {r["method"]: r for r in rows}
     print(
         "\nDIC joint speed-up (time_at_n ratio; DE extrapolated from "

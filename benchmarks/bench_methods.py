@@ -29,8 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
+from kikuchipy_geomdic import study as st
 from kikuchipy_geomdic import synthetic
-from kikuchipy_geomdic import validation as val
+from kikuchipy_geomdic.comparison import compare_methods
 
 RESULTS = Path(__file__).resolve().parent / "results"
 COLUMNS = [
@@ -73,12 +74,12 @@ def main(argv=None) -> int:
             mat, (side, side), orientations=orient, shape=(args.size, args.size),
             orientation_error=0.3, seed=0,
         )
-        d0 = val.mean_displacement(sm.start_geometry, sm.geometry)
+        d0 = st.mean_displacement(sm.start_geometry, sm.geometry)
         print(
             f"\n## {case}: {side} x {side} map, {args.size} x {args.size} px, start "
             f"displacement {100 * d0:.2f} % of width, start orientation error 0.3 deg RMS"
         )
-        rows = val.compare_methods(
+        rows = compare_methods(
             sm,
             points=side * side,
             methods=("dic", "dic-fast", "nelder-mead", "differential-evolution"),
@@ -88,7 +89,7 @@ def main(argv=None) -> int:
             de_kwargs=dict(seed=0, maxiter=args.de_maxiter),
             verbose=True,
         )
-        print(val.format_table(rows, COLUMNS))
+        print(st.format_table(rows, COLUMNS))
         by = {r["method"]: r for r in rows}
         ratios = []
         for fast in ("dic", "dic-fast"):
@@ -99,7 +100,7 @@ def main(argv=None) -> int:
                 de_extrapolated=by["differential-evolution"]["extrapolated"],
             ))
         print("\nSpeed-up (time ratios, same run; DE extrapolated from its time per point):")
-        print(val.format_table(ratios))
+        print(st.format_table(ratios))
         with open(RESULTS / f"methods_{case}{'_quick' if args.quick else ''}.csv", "w") as f:
             f.write(",".join(COLUMNS) + "\n")
             for r in rows:

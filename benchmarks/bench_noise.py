@@ -33,8 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
+from kikuchipy_geomdic import study as st
 from kikuchipy_geomdic import synthetic
-from kikuchipy_geomdic import validation as val
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -100,9 +100,9 @@ def main(argv=None) -> int:
                    binning=args.binning, rois=(args.rois, args.rois))
         if args.dic_blur:
             rkw["dic_kwargs"] = dict(blur=args.dic_blur)
-        study = val.perturbation_study(
+        study = st.perturbation_study(
             "Si", pairs=pairs, levels=levels, navigation_shape=nav, shape=(60, 60),
-            orientations="random", base_geometry=val.paper_geometry(nav, (60, 60)),
+            orientations="random", base_geometry=st.paper_geometry(nav, (60, 60)),
             refine_kwargs=rkw,
             dose=dose, blur=0.5, n_workers=args.workers,
         )
@@ -125,8 +125,8 @@ def main(argv=None) -> int:
             minutes=study.wall_time / 60,
         )
         rows.append(row)
-        print(val.format_table([row]), flush=True)
-    print("\n" + val.format_table(rows))
+        print(st.format_table([row]), flush=True)
+    print("\n" + st.format_table(rows))
     RESULTS.mkdir(parents=True, exist_ok=True)
     with open(RESULTS / f"noise{'_quick' if args.quick else ''}{args.suffix}.csv", "w") as f:
         f.write(",".join(rows[0]) + "\n")

@@ -25,7 +25,7 @@ import numpy as np
 
 matplotlib.use("Agg")
 
-from kikuchipy_geomdic import validation as val  # noqa: E402
+from kikuchipy_geomdic import study as st  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -42,15 +42,15 @@ def fill_eq2(table, material, nav, shape, seed=0):
     missing = ~np.isfinite(table["initial_displacement_eq2"])
     if not missing.any():
         return table
-    base = val.paper_geometry(nav, shape)
+    base = st.paper_geometry(nav, shape)
     sm = synthetic.synthetic_map(material, nav, orientations=ORIENTATIONS.get(material, "random"),
                                  geometry=base, perturbation={}, orientation_error=0, seed=seed)
-    pts = np.stack([a.ravel() for a in np.indices(nav)], axis=1)
+    pts = st._all_points(nav)
     for i in np.flatnonzero(missing):
         r = table[i]
         delta = {str(r["param1"]): float(r["delta1"])}
         delta[str(r["param2"])] = delta.get(str(r["param2"]), 0.0) + float(r["delta2"])
-        table["initial_displacement_eq2"][i] = val.eq2_displacement(
+        table["initial_displacement_eq2"][i] = st.eq2_displacement(
             sm.master_pattern, sm.xmap.rotations, base, base.updated(delta), pts, sm.energy
         )[0]
     return table
@@ -79,14 +79,14 @@ def report(study, mat, tag, quick=False):
         RESULTS / f"perturbation_{tag}_misorientation.png", dpi=110
     )
     study.plot_errors().savefig(RESULTS / f"perturbation_{tag}_errors.png", dpi=110)
-    pairs_done = val._pairs_in(study.table)
+    pairs_done = st._pairs_in(study.table)
     for pair in pairs_done[:2] if quick else [("pcz", "tilt"), ("azimuthal", "sample_tilt")]:
         if pair in pairs_done:
             study.plot_normalised_errors(pair).savefig(
                 RESULTS / f"perturbation_{tag}_nerr_{pair[0]}_{pair[1]}.png", dpi=110
             )
     print(f"\n{mat}: {study.wall_time / 60:.1f} min wall for {study.table.size} runs")
-    print(val.format_table([s]))
+    print(st.format_table([s]))
     rows = []
     for p in pairs_done:
         t = study.table[(study.table["param1"] == p[0]) & (study.table["param2"] == p[1])]
@@ -94,7 +94,7 @@ def report(study, mat, tag, quick=False):
                          success=int(t["success"].sum()),
                          max_d0=float(t["initial_displacement"].max()),
                          max_d0_eq2=float(t["initial_displacement_eq2"].max())))
-    print(val.format_table(rows))
+    print(st.format_table(rows))
     return s
 
 
@@ -109,22 +109,22 @@ def postprocess(args) -> int:
         path = RESULTS / f"perturbation_{tag}.csv"
         if not path.exists():
             continue
-        table = fill_eq2(val.read_table(path), mat, nav, shape)
-        val._write_csv(table, path)
-        geo = val.paper_geometry(nav, shape)
-        pts = np.stack([a.ravel() for a in np.indices(nav)], axis=1)
-        scale, coupling = val.sensitivities(geo, pts)
+        table = fill_eq2(st.read_table(path), mat, nav, shape)
+        st.write_table(table, path)
+        geo = st.paper_geometry(nav, shape)
+        pts = st._all_points(nav)
+        scale, coupling = st.sensitivities(geo, pts)
         old = {}
         jpath = RESULTS / f"perturbation_{tag}_summary.json"
         if jpath.exists():
             old = json.load(open(jpath)).get("summary", {})
         wall = args.wall.get(mat, old.get("wall_time", float("nan")))
-        study = val.PerturbationStudy(table=table, scale=scale, coupling=coupling,
+        study = st.PerturbationStudy(table=table, scale=scale, coupling=coupling,
                                       settings=dict(material=mat, navigation_shape=nav, shape=shape),
                                       wall_time=wall)
         summaries.append(report(study, mat, tag, args.quick))
         plt.close("all")
-    print(val.format_table(summaries, SUMMARY_COLUMNS))
+    print(st.format_table(summaries, SUMMARY_COLUMNS))
     return 0
 
 
@@ -165,7 +165,7 @@ def main(argv=None) -> int:
         return postprocess(args)
 
     pairs = [tuple(p.split(",")) for p in args.pairs] if args.pairs else None
-    levels = val.PAPER_LEVELS
+    levels = st.PAPER_LEVELS
     if args.quick:
         pairs = pairs or [("pcz", "tilt"), ("azimuthal", "sample_tilt")]
         levels = (-1.0, 0.0, 1.0)
@@ -188,21 +188,21 @@ def main(argv=None) -> int:
     summaries = []
     t_all = time.perf_counter()
     for mat in args.materials:
-        geo = val.paper_geometry(nav, shape)
+        geo = st.paper_geometry(nav, shape)
         tag = f"{mat}{'_quick' if args.quick else ''}{args.suffix}"
         # One Dask computation per pair, the table saved after each, so an
         # interrupted study keeps its finished pairs
         parts, t_mat = [], time.perf_counter()
-        for pair in pairs or val.PAPER_PAIRS:
-            part = val.perturbation_study(
+        for pair in pairs or st.PAPER_PAIRS:
+            part = st.perturbation_study(
                 mat, pairs=[pair], levels=levels, navigation_shape=nav, shape=shape,
                 orientations=ORIENTATIONS.get(mat, "random"), base_geometry=geo,
                 refine_kwargs=rkw, n_workers=args.workers, verbose=True,
             )
             parts.append(part)
-            study = val.PerturbationStudy(
+            study = st.PerturbationStudy(
                 table=np.concatenate([p.table for p in parts]), scale=part.scale,
-                coupling=part.coupling, settings=dict(part.settings, pairs=pairs or val.PAPER_PAIRS),
+                coupling=part.coupling, settings=dict(part.settings, pairs=pairs or st.PAPER_PAIRS),
                 wall_time=time.perf_counter() - t_mat,
             )
             study.save(RESULTS / f"perturbation_{tag}.csv")
@@ -211,7 +211,7 @@ def main(argv=None) -> int:
                   flush=True)
         summaries.append(report(study, mat, tag, args.quick))
     print(f"\nAll materials: {(time.perf_counter() - t_all) / 60:.1f} min")
-    print(val.format_table(summaries, SUMMARY_COLUMNS))
+    print(st.format_table(summaries, SUMMARY_COLUMNS))
     return 0
 
 

@@ -32,8 +32,8 @@ from pathlib import Path
 
 import dask
 
+from kikuchipy_geomdic import study as st
 from kikuchipy_geomdic import synthetic
-from kikuchipy_geomdic import validation as val
 from kikuchipy_geomdic.refinement import refine_geometry_dic
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -76,7 +76,7 @@ def run(side: int, size: int, max_iterations: int = 4) -> dict:
     dom = max(STAGES, key=lambda s: row[f"t_{s}"])
     row["dominant"] = dom
     row["dominant_share"] = row[f"t_{dom}"] / wall
-    err = val._geometry_errors(res.geometry, sm.geometry)
+    err = st._geometry_errors(res.geometry, sm.geometry)
     row["max_pc_error"] = max(abs(err[k]) for k in ("pcx", "pcy", "pcz"))
     return row
 
@@ -110,7 +110,7 @@ def main(argv=None) -> int:
               f"{r['dominant']} {100 * r['dominant_share']:.0f} %", flush=True)
     cols = ["points", "size", "time", "iterations", "peak_mib"] + [f"t_{s}" for s in STAGES] + [
         "t_other", "dominant", "dominant_share", "max_pc_error"]
-    print(val.format_table(rows, cols))
+    print(st.format_table(rows, cols))
     RESULTS.mkdir(parents=True, exist_ok=True)
     with open(RESULTS / f"scaling{'_quick' if args.quick else ''}.csv", "w") as f:
         f.write(",".join(cols) + "\n")

@@ -11,6 +11,7 @@ import warnings
 from kikuchipy.signals import EBSD
 
 from kikuchipy_geomdic import (
+    comparison,
     displacement,
     geometry,
     jacobian,
@@ -18,8 +19,8 @@ from kikuchipy_geomdic import (
     phases,
     simulation,
     solve,
+    study,
     synthetic,
-    validation,
 )
 from kikuchipy_geomdic.refinement import GeometryRefinementResult, refine_geometry_dic
 
@@ -28,6 +29,7 @@ __version__ = "0.1.0.dev0"
 __all__ = [
     "GeometryRefinementResult",
     "refine_geometry_dic",
+    "comparison",
     "displacement",
     "geometry",
     "jacobian",
@@ -35,8 +37,8 @@ __all__ = [
     "phases",
     "simulation",
     "solve",
+    "study",
     "synthetic",
-    "validation",
     "__version__",
 ]
 

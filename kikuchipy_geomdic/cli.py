@@ -121,8 +121,6 @@ def _demo(args: argparse.Namespace) -> int:
 
     from kikuchipy_geomdic import synthetic
     from kikuchipy_geomdic.maps import flat_index
-    from kikuchipy_geomdic.refinement import refine_geometry_dic
-    from kikuchipy_geomdic.validation import centred_prior
 
     dose = None if args.paper or not args.dose else args.dose
     start = "centred" if args.paper else "indexed"
@@ -154,14 +152,9 @@ def _demo(args: argparse.Namespace) -> int:
         f"perturbation; {how}."
     )
     t1 = time.perf_counter()
-    res = refine_geometry_dic(
-        sm.signal,
-        sm.start_xmap,
-        sm.start_detector,
-        sm.master_pattern,
-        sm.energy,
+    res = sm.refine_geometry(
         points=args.points,
-        orientation_prior=centred_prior(error) if args.paper else None,
+        orientation_prior=synthetic.centred_prior(error) if args.paper else None,
         seed=args.seed,
         show_progressbar=True,
     )
@@ -555,6 +548,28 @@ def _phase_arg(phase: str | None) -> str | int | None:
     return int(phase) if phase is not None and phase.lstrip("-").isdigit() else phase
 
 
+def _load_map(args: argparse.Namespace):
+    """The patterns, crystal map, master pattern and matched phase id of
+    ``refine`` and ``reindex``, each checked against the others."""
+    from kikuchipy_geomdic.phases import check_phase
+
+    signal = load_patterns(args.patterns)
+    xmap = load_crystal_map(args.orientations, signal)
+    _check_step_sizes(signal, xmap)
+    mp = load_master_pattern(args.master_pattern, args.energy)
+    return signal, xmap, mp, check_phase(xmap, mp, _phase_arg(args.phase))
+
+
+def _run_on_map(function, args: argparse.Namespace, inputs, **kwargs):
+    """``function(signal, xmap, detector, master_pattern, energy, ...)``
+    on the ``--scheduler`` cluster (if any), with kikuchipy's progress
+    unless ``--quiet``; the result and the wall time in seconds."""
+    t0 = time.perf_counter()
+    with _dask_client(args.scheduler):
+        out = function(*inputs, args.energy, show_progressbar=not args.quiet, **kwargs)
+    return out, time.perf_counter() - t0
+
+
 def _calibration_points(signal, xmap, phase_id: int, n: int):
     """About *n* usable points spread over the map, without NaN or blank
     patterns (each candidate pattern is read once)."""
@@ -660,30 +675,17 @@ class _Staging:
 
 
 def _history_csv(history: list[dict], names: Sequence[str]) -> str:
-    cols = [
-        "iteration",
-        "accepted",
-        "damping",
-        "ncc_before",
-        "ncc_after",
-        "displacement_before",
-        "displacement_after",
-        *names,
-    ]
-    lines = [",".join(cols)]
-    for h in history:
-        vals = [
-            h["iteration"],
-            int(h["accepted"]),
-            h["damping"],
-            h["ncc_before"],
-            h["ncc_after"],
-            h["displacement_before"],
-            h["displacement_after"],
-            *(h["parameters"][n] for n in names),
-        ]
-        lines.append(",".join(f"{v:.12g}" if isinstance(v, float) else str(v) for v in vals))
-    return "\n".join(lines) + "\n"
+    from kikuchipy_geomdic.conventions import csv_text
+
+    cols = ["iteration", "accepted", "damping", "ncc_before", "ncc_after",
+            "displacement_before", "displacement_after"]
+    # accepted as 1 or 0, which every CSV reader takes for a number
+    rows = (
+        [*(int(h[c]) if c == "accepted" else h[c] for c in cols),
+         *(h["parameters"][n] for n in names)]
+        for h in history
+    )
+    return csv_text([*cols, *names], rows)
 
 
 def _inputs(args: argparse.Namespace, signal, master_pattern, **extra) -> dict[str, Any]:
@@ -722,16 +724,11 @@ def _refine(args: argparse.Namespace) -> int:
 
     from kikuchipy_geomdic import conventions as cv
     from kikuchipy_geomdic.maps import flat_index, navigation_shape
-    from kikuchipy_geomdic.phases import check_phase
     from kikuchipy_geomdic.refinement import refine_geometry_dic
 
     staging = _Staging(args.out, REFINE_OUTPUTS, args.overwrite)
     say = (lambda *a: None) if args.quiet else print
-    signal = load_patterns(args.patterns)
-    xmap = load_crystal_map(args.orientations, signal)
-    _check_step_sizes(signal, xmap)
-    mp = load_master_pattern(args.master_pattern, args.energy)
-    phase_id = check_phase(xmap, mp, _phase_arg(args.phase))
+    signal, xmap, mp, phase_id = _load_map(args)
     det = start_detector(signal, args)
     _check_detector(det, signal)
 
@@ -752,25 +749,19 @@ def _refine(args: argparse.Namespace) -> int:
         f"{tuple(det.shape)} px, {mp.phase.name}, {args.energy:g} kV, "
         f"{len(pts)} points"
     )
-    t0 = time.perf_counter()
-    with _dask_client(args.scheduler):
-        res = refine_geometry_dic(
-            signal,
-            xmap,
-            det,
-            mp,
-            args.energy,
-            parameters=args.parameters,
-            points=pts,
-            solver=args.solver,
-            orientation_prior=args.orientation_prior,
-            rois=tuple(args.rois),
-            max_iterations=args.max_iterations,
-            phase=phase_id,
-            seed=args.seed,
-            show_progressbar=not args.quiet,
-        )
-    seconds = time.perf_counter() - t0
+    res, seconds = _run_on_map(
+        refine_geometry_dic,
+        args,
+        (signal, xmap, det, mp),
+        parameters=args.parameters,
+        points=pts,
+        solver=args.solver,
+        orientation_prior=args.orientation_prior,
+        rois=tuple(args.rois),
+        max_iterations=args.max_iterations,
+        phase=phase_id,
+        seed=args.seed,
+    )
     summary = cv.summary_from_result(
         res,
         **_inputs(
@@ -860,16 +851,11 @@ def _reindex(args: argparse.Namespace) -> int:
 
     from kikuchipy_geomdic import conventions as cv
     from kikuchipy_geomdic.maps import navigation_shape
-    from kikuchipy_geomdic.phases import check_phase
     from kikuchipy_geomdic.reindex import reindex, usable_points
 
     staging = _Staging(args.out, REINDEX_OUTPUTS, args.overwrite)
     say = (lambda *a: None) if args.quiet else print
-    signal = load_patterns(args.patterns)
-    xmap = load_crystal_map(args.orientations, signal)
-    _check_step_sizes(signal, xmap)
-    mp = load_master_pattern(args.master_pattern, args.energy)
-    phase_id = check_phase(xmap, mp, _phase_arg(args.phase))
+    signal, xmap, mp, phase_id = _load_map(args)
     det, source = _reindex_detector(args, signal)
     _check_detector(det, signal)
     kw: dict[str, Any] = {"method": args.method}
@@ -889,19 +875,7 @@ def _reindex(args: argparse.Namespace) -> int:
         f"({navigation_shape(signal)} map, {xmap.phases[phase_id].name}) with the detector "
         f"from {source}"
     )
-    t0 = time.perf_counter()
-    with _dask_client(args.scheduler):
-        out = reindex(
-            signal,
-            xmap,
-            det,
-            mp,
-            args.energy,
-            phase=phase_id,
-            show_progressbar=not args.quiet,
-            **kw,
-        )
-    seconds = time.perf_counter() - t0
+    out, seconds = _run_on_map(reindex, args, (signal, xmap, det, mp), phase=phase_id, **kw)
     refined = out.prop["refined"].astype(bool)
     scores = out.prop["scores"][refined]
     stats = {
@@ -1152,13 +1126,7 @@ def _parser() -> argparse.ArgumentParser:
         help="ROI grid of the displacement field (default 8 8)",
     )
     refine.add_argument("--seed", type=int, default=0, help="seed of the DIC noise (default 0)")
-    refine.add_argument(
-        "--out",
-        metavar="DIR",
-        default="geomdic-refine",
-        help="output folder (default geomdic-refine)",
-    )
-    refine.set_defaults(func=_refine)
+    _command_output(refine, "refine", _refine)
 
     reidx = sub.add_parser(
         "reindex",
@@ -1198,14 +1166,20 @@ def _parser() -> argparse.ArgumentParser:
         metavar=("D1", "D2", "D3"),
         help="+- bounds in degrees on the three Euler angles",
     )
-    reidx.add_argument(
+    _command_output(reidx, "reindex", _reindex)
+    return parser
+
+
+def _command_output(parser: argparse.ArgumentParser, command: str, func) -> None:
+    """The ``--out`` folder of a command (default ``geomdic-<command>``)
+    and the function that runs it."""
+    parser.add_argument(
         "--out",
         metavar="DIR",
-        default="geomdic-reindex",
-        help="output folder (default geomdic-reindex)",
+        default=f"geomdic-{command}",
+        help=f"output folder (default geomdic-{command})",
     )
-    reidx.set_defaults(func=_reindex)
-    return parser
+    parser.set_defaults(func=func)
 
 
 def _positive_int(text: str) -> int:

@@ -28,6 +28,10 @@ Three forms are written:
   :func:`write_summary`, :func:`read_summary`,
   :func:`geometry_from_summary`, :func:`format_summary`).
 
+Every file is written atomically (:func:`atomic_write_text`): a reader
+sees the old file or the complete new one. :func:`csv_text` formats the
+tables (refinement history, study tables) written beside them.
+
 Angles
 ------
 The detector angles (``tilt``, ``azimuthal``, ``twist``, ``sample_tilt``,
@@ -46,6 +50,7 @@ physical geometry comes back.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -53,9 +58,10 @@ import platform
 import re
 import tempfile
 import warnings
+from collections.abc import Iterable, Mapping, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import kikuchipy
 import numpy as np
@@ -79,6 +85,7 @@ __all__ = [
     "geometry_from_summary",
     "format_summary",
     "atomic_write_text",
+    "csv_text",
 ]
 
 #: The PC conventions, canonical names.
@@ -382,6 +389,20 @@ def _atomic_path(path: Path):
     return Path(tmp)
 
 
+@contextlib.contextmanager
+def _atomic(path: str | Path):
+    """Yield a temporary path to write to; on success it replaces *path*
+    in one step, so a reader (or an interrupted run) sees the old file or
+    the complete new one, never a partial file."""
+    path = Path(path)
+    tmp = _atomic_path(path)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
 def atomic_write_text(path: str | Path, text: str) -> Path:
     """Write *text* to *path* atomically: a reader (or an interrupted run)
     sees the old file or the complete new one, never a partial file.
@@ -397,14 +418,43 @@ def atomic_write_text(path: str | Path, text: str) -> Path:
     -------
     path
     """
-    path = Path(path)
-    tmp = _atomic_path(path)
-    try:
+    with _atomic(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
+    return Path(path)
+
+
+def csv_text(columns: Sequence[str], rows: Iterable[Sequence[Any]], digits: int = 12) -> str:
+    """Return rows as CSV text with a header line.
+
+    Parameters
+    ----------
+    columns
+        Column names.
+    rows
+        Rows of values in the order of *columns*.
+    digits
+        Significant digits of floats; other values are written with
+        ``str``.
+
+    Returns
+    -------
+    text
+        One line per row, each ending in a newline.
+
+    Examples
+    --------
+    >>> from kikuchipy_geomdic.conventions import csv_text
+    >>> print(csv_text(["step", "ncc", "accepted"], [(1, 0.123456789, True)], 4), end="")
+    step,ncc,accepted
+    1,0.1235,True
+    """
+    lines = [",".join(columns)]
+    for row in rows:
+        lines.append(
+            ",".join(f"{v:.{digits}g}" if isinstance(v, (float, np.floating)) else str(v)
+                     for v in row)
+        )
+    return "\n".join(lines) + "\n"
 
 
 def save_detector(
@@ -443,15 +493,10 @@ def save_detector(
     (True, 2.0)
     """
     conv = convention_name(convention)
-    path = Path(path)
-    tmp = _atomic_path(path)
-    try:
+    with _atomic(path) as tmp:
         # "%.17g" round-trips every float64; kikuchipy's "%.7f" does not
         detector.save(tmp, convention=conv, fmt="%.17g")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
+    return Path(path)
 
 
 def read_detector_header(path: str | Path) -> dict[str, str]:

@@ -1,4 +1,4 @@
-"""Displacement fields between simulated and experimental patterns (DIC).
+r"""Displacement fields between simulated and experimental patterns (DIC).
 
 Section 2.2 of Griesbach & Kochmann: each pair of a simulated pattern
 :math:`\mathbf{A}_i` and an experimental pattern :math:`\mathbf{B}_i` is
@@ -53,11 +53,12 @@ the error per vector on simulated patterns.
 
 from __future__ import annotations
 
+import inspect
 import math
 import os
 import warnings
 from dataclasses import dataclass
-from functools import partial
+from functools import cache, partial
 
 import numpy as np
 from scipy import ndimage
@@ -194,10 +195,8 @@ def roi_index(
     x, y
         Pixel coordinates (any matching shapes). A point belongs to the
         pixel whose centre is nearest, ``(floor(y + 0.5), floor(x + 0.5))``.
-    shape
-        Pattern shape (rows, columns).
-    rois
-        Grid shape (n, m).
+    shape, rois
+        Pattern shape (rows, columns) and ROI grid (n, m).
 
     Returns
     -------
@@ -348,7 +347,7 @@ def roi_weights(counts: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------- #
 
 
-def bin_pattern(pattern: np.ndarray, binning: int) -> np.ndarray:
+def bin_pattern(pattern: np.ndarray, binning: int, dtype=np.float64) -> np.ndarray:
     """Return a pattern binned by averaging *binning* x *binning* blocks.
 
     Rows and columns left over at the bottom and right edges (when the
@@ -359,14 +358,17 @@ def bin_pattern(pattern: np.ndarray, binning: int) -> np.ndarray:
     Parameters
     ----------
     pattern
-        2D array.
+        Array (..., rows, columns): one pattern or a stack; the last two
+        axes are binned.
     binning
         Positive integer.
+    dtype
+        Floating type the blocks are averaged in and returned as.
 
     Returns
     -------
     binned
-        float64 array of shape ``(rows // binning, columns // binning)``.
+        Array of shape ``(..., rows // binning, columns // binning)``.
 
     Examples
     --------
@@ -376,12 +378,12 @@ def bin_pattern(pattern: np.ndarray, binning: int) -> np.ndarray:
     array([[ 3.,  5.],
            [13., 15.]])
     """
-    p = np.asarray(pattern, dtype=np.float64)
+    p = np.asarray(pattern, dtype=dtype)
     if binning == 1:
         return p
-    nr, nc = p.shape[0] // binning, p.shape[1] // binning
-    p = p[: nr * binning, : nc * binning]
-    return p.reshape(nr, binning, nc, binning).mean(axis=(1, 3))
+    nr, nc = p.shape[-2] // binning, p.shape[-1] // binning
+    p = p[..., : nr * binning, : nc * binning]
+    return p.reshape(p.shape[:-2] + (nr, binning, nc, binning)).mean(axis=(-3, -1))
 
 
 def _standardise(pattern: np.ndarray, index: int, name: str) -> np.ndarray:
@@ -780,27 +782,25 @@ def _group_median(values: np.ndarray, groups: np.ndarray, n_groups: int) -> np.n
 def pattern_vectors(
     simulated: np.ndarray,
     experimental: np.ndarray,
-    rois: tuple[int, int] = (8, 8),
-    binning: int = 1,
-    noise: float = 0.0,
-    blur: float = 0.0,
-    dic: str = "auto",
-    max_roi_crossings: int | None = 2,
-    forward_backward: float | None = 0.2,
-    robust: float | None = 3.0,
-    features_per_roi: int = 8,
-    window: int = 11,
-    levels: int = 3,
-    smoothing: float = 0.7,
     rng: np.random.Generator | int | None = None,
     index: int = 0,
+    **options,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Return the displacement vectors of one pattern pair.
 
-    Parameters are those of :func:`measure_displacements`, for one
-    simulated and one experimental 2D pattern; *rng* is the generator (or
-    seed) of the noise added to *simulated*, and *index* names the pattern
-    in error messages.
+    Parameters
+    ----------
+    simulated, experimental
+        One simulated and one experimental 2D pattern of one shape.
+    rng
+        Generator (or seed) of the noise added to *simulated*.
+    index
+        Names the pattern in error messages.
+    **options
+        The DIC options of :func:`measure_displacements` (``rois``,
+        ``binning``, ``noise``, ``blur``, ``dic``, ``max_roi_crossings``,
+        ``forward_backward``, ``robust``, ``features_per_roi``,
+        ``window``, ``levels``, ``smoothing``), with its defaults.
 
     Returns
     -------
@@ -820,7 +820,9 @@ def pattern_vectors(
     >>> xy_a.shape[1], np.round(np.median(xy_b - xy_a, axis=0), 1)
     (2, array([1. , 0.5]))
     """
-    backend = resolve_backend(dic)
+    o = _dic_options(options)
+    rois, binning, window = o["rois"], o["binning"], o["window"]
+    backend = resolve_backend(o["dic"])
     a = np.asarray(simulated, dtype=np.float64)
     b = np.asarray(experimental, dtype=np.float64)
     if a.ndim != 2 or a.shape != b.shape:
@@ -832,39 +834,59 @@ def pattern_vectors(
     _check_tracking(shape, rois, binning, window)
     a = _standardise(a, index, "Simulated")
     b = _standardise(b, index, "Experimental")
-    if blur:
-        a = _standardise(ndimage.gaussian_filter(a, blur, mode="nearest"), index, "Simulated")
-    if noise:
-        a = a + np.random.default_rng(rng).normal(0.0, noise, a.shape)  # std(a) is 1
-    a, b = _prepare(a, binning, smoothing), _prepare(b, binning, smoothing)
+    if o["blur"]:
+        a = ndimage.gaussian_filter(a, o["blur"], mode="nearest")
+        a = _standardise(a, index, "Simulated")
+    if o["noise"]:
+        a = a + np.random.default_rng(rng).normal(0.0, o["noise"], a.shape)  # std(a) is 1
+    a, b = _prepare(a, binning, o["smoothing"]), _prepare(b, binning, o["smoothing"])
     # Features closer than half a window to the edge are not used: their
     # LK window would reach outside the pattern
     labels, boxes = _tracking_labels(shape, rois, binning, a.shape, window // 2)
-    top = _max_levels(a.shape, window, levels)
+    top = _max_levels(a.shape, window, o["levels"])
     if backend == "opencv":
         cv2 = _import_cv2()
         img_a, img_b = _to_uint8(a, b)
-        pts = _features_opencv(cv2, a, boxes, features_per_roi)
+        pts = _features_opencv(cv2, a, boxes, o["features_per_roi"])
         track = partial(_track_opencv, cv2, window=window, levels=top)
     else:
         img_a, img_b = a, b
-        pts = _features_skimage(a, labels, features_per_roi)
+        pts = _features_skimage(a, labels, o["features_per_roi"])
         track = partial(_track_numpy, window=window, levels=top)
     end = pts
     if len(pts):
         end, ok = track(img_a, img_b, pts)
-        if forward_backward is not None and ok.any():
+        if o["forward_backward"] is not None and ok.any():
             back, ok_back = track(img_b, img_a, end)
             miss = np.hypot(*(back - pts).T) * binning
-            ok &= ok_back & (miss <= forward_backward)
+            ok &= ok_back & (miss <= o["forward_backward"])
         pts, end = pts[ok], end[ok]
         shift = _window_centres(a, pts, window)
         pts, end = pts + shift, end + shift
     # Binned pixel k is centred on full-resolution coordinate k b + (b - 1) / 2
     xy_a = pts * binning + (binning - 1) / 2
     xy_b = end * binning + (binning - 1) / 2
-    keep = filter_vectors(xy_a, xy_b, shape, rois, max_roi_crossings, robust)
+    keep = filter_vectors(xy_a, xy_b, shape, rois, o["max_roi_crossings"], o["robust"])
     return xy_a[keep], xy_b[keep]
+
+
+@cache
+def _dic_defaults() -> dict:
+    """The DIC options of :func:`measure_displacements` with their
+    defaults: its signature is their one definition."""
+    params = inspect.signature(measure_displacements).parameters
+    own = ("simulated", "experimental", "seed", "keep_vectors", "chunk_size")
+    return {k: p.default for k, p in params.items() if k not in own}
+
+
+def _dic_options(options) -> dict:
+    """*options* completed with the defaults; an unknown name raises as a
+    misspelt keyword argument would."""
+    defaults = _dic_defaults()
+    unknown = sorted(set(options) - set(defaults))
+    if unknown:
+        raise TypeError(f"Unknown DIC option(s) {unknown}: use {list(defaults)}")
+    return {**defaults, **options}
 
 
 def _window_centres(img: np.ndarray, pts: np.ndarray, window: int) -> np.ndarray:

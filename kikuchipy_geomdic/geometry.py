@@ -57,7 +57,6 @@ __all__ = [
     "pc_field",
     "forward_map",
     "copy_detector",
-    "update_detector",
     "rotation_vectors",
     "rotations_from_vectors",
 ]
@@ -410,6 +409,8 @@ def copy_detector(detector: EBSDDetector, **changes) -> EBSDDetector:
     Returns
     -------
     new_detector
+        A new :class:`~kikuchipy.detectors.EBSDDetector` (Bruker PCs);
+        the PC array is a copy.
 
     Examples
     --------
@@ -429,47 +430,6 @@ def copy_detector(detector: EBSDDetector, **changes) -> EBSDDetector:
     )
     kw.update(changes)
     return EBSDDetector(convention="bruker", **kw)
-
-
-def update_detector(
-    detector: EBSDDetector, delta: Mapping[str, float]
-) -> EBSDDetector:
-    """Return a new detector with parameter changes added.
-
-    PC changes are added to every PC of the detector; angle changes to
-    the angles. Shape, pixel size, binning and the untouched angles are
-    kept (kikuchipy's ``crop`` drops ``twist``, so it is not used). The
-    PC field is *not* made consistent with changed angles here: use
-    :class:`MapGeometry` for that.
-
-    Parameters
-    ----------
-    detector
-        Detector to start from; not modified.
-    delta
-        ``{name: change}`` for names in :data:`PARAMETERS`.
-
-    Returns
-    -------
-    new_detector
-        A new :class:`~kikuchipy.detectors.EBSDDetector` (Bruker PCs).
-
-    Examples
-    --------
-    >>> from kikuchipy.detectors import EBSDDetector
-    >>> from kikuchipy_geomdic.geometry import update_detector
-    >>> det = EBSDDetector((60, 60), pc=(0.5, 0.5, 0.5), twist=0.3)
-    >>> new = update_detector(det, {"pcz": 0.01, "tilt": 1})
-    >>> float(new.pcz[0]), new.tilt, new.twist
-    (0.51, 1.0, 0.3)
-    """
-    if delta:
-        check_parameters(list(delta))
-    pc = detector.pc.copy()
-    for i, name in enumerate(("pcx", "pcy", "pcz")):
-        pc[..., i] += delta.get(name, 0.0)
-    angles = {a: getattr(detector, a) + delta.get(a, 0.0) for a in _ANGLES}
-    return copy_detector(detector, pc=pc, **angles)
 
 
 @dataclass(frozen=True)
@@ -619,7 +579,26 @@ class MapGeometry:
         return dict(zip(PARAMETERS, map(float, self.values())))
 
     def updated(self, delta: Mapping[str, float]) -> "MapGeometry":
-        """Return a new geometry with ``{name: change}`` added."""
+        """Return a new geometry with parameter changes added.
+
+        PC changes are added to the reference PC, angle changes to the
+        angles; the PC of every map point follows from both
+        (:meth:`pc_at`). Detector and map are kept.
+
+        Parameters
+        ----------
+        delta
+            ``{name: change}`` for names in :data:`PARAMETERS`.
+
+        Returns
+        -------
+        geometry
+
+        Raises
+        ------
+        ValueError
+            For an unknown parameter name.
+        """
         if delta:
             check_parameters(list(delta))
         pc = np.array(self.pc)

@@ -192,20 +192,12 @@ def analytic_jacobian(
 
     Parameters
     ----------
-    geometry
-        Current geometry.
-    points
-        Map positions (N, 2) of the patterns.
-    positions
-        Feature positions (N, R, 2) ``(x, y)``.
+    geometry, points, positions, names, steps
+        As in :func:`pattern_jacobian` (no simulation is involved, so
+        small steps are fine).
     counts
         Vectors per pattern and ROI (N, R); ROIs with none contribute
         zero, as in Eq. 2.
-    names
-        Parameters, one column each.
-    steps
-        ``{name: delta}`` of the central difference of the forward map
-        (no simulation is involved, so small steps are fine).
 
     Returns
     -------

@@ -90,6 +90,7 @@ def phases_match(phase: Phase, other: Phase) -> bool:
     Returns
     -------
     match
+        Whether the two are the same phase by this rule.
 
     Examples
     --------

@@ -51,8 +51,6 @@ refinement inside the loop and NCC acceptance, with these departures:
 
 from __future__ import annotations
 
-import contextlib
-import io
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
@@ -69,7 +67,6 @@ from kikuchipy_geomdic.geometry import (
     EQUIVALENT_PARAMETERS,
     MapGeometry,
     check_parameters,
-    copy_detector,
     rotation_vectors,
     rotations_from_vectors,
 )
@@ -80,7 +77,7 @@ from kikuchipy_geomdic.jacobian import (
 )
 from kikuchipy_geomdic.maps import flat_index, navigation_shape
 from kikuchipy_geomdic.phases import check_phase
-from kikuchipy_geomdic.reindex import usable_points
+from kikuchipy_geomdic.reindex import refine_orientations, usable_points
 from kikuchipy_geomdic.simulation import check_master_pattern, simulate_patterns
 from kikuchipy_geomdic.solve import JointUpdate, coupling_matrix, solve_joint, solve_update
 
@@ -466,25 +463,13 @@ class _Problem:
     ) -> tuple[Rotation, np.ndarray]:
         """Refine orientations with kikuchipy, on patterns binned by
         *binning* (default :attr:`loop_binning`)."""
-        b = self.loop_binning if binning is None else binning
-        n = len(self.points)
-        exp = self.experimental
-        det = geometry.detector(self.points)
-        if b > 1:
-            # Bruker PC fractions do not change with binning
-            exp = exp.reshape(n, exp.shape[1] // b, b, exp.shape[2] // b, b).mean(axis=(2, 4))
-            det = copy_detector(det, shape=exp.shape[1:], binning=det.binning * b)
-        signal = EBSD(exp)
-        signal.axes_manager.navigation_axes[0].name = "x"
-        xmap = CrystalMap(
-            rotations=rotations, x=np.arange(n, dtype=float), phase_list=PhaseList(self.phase)
-        )
         kw = dict(self.refine_kwargs)
         if self.pseudo_symmetry_ops is not None:
             kw["pseudo_symmetry_ops"] = self.pseudo_symmetry_ops
-        # kikuchipy prints a summary and a dask progress bar per call
-        with contextlib.redirect_stdout(io.StringIO()):
-            ref = signal.refine_orientation(xmap, det, self.master_pattern, self.energy, **kw)
+        ref = refine_orientations(
+            self.experimental, rotations, geometry.detector(self.points), self.master_pattern,
+            self.energy, self.phase, self.loop_binning if binning is None else binning, **kw,
+        )
         return ref.rotations, ref.scores
 
     @property

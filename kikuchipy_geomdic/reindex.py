@@ -39,6 +39,8 @@ from kikuchipy.signals import EBSD, EBSDMasterPattern
 from orix.crystal_map import CrystalMap, PhaseList
 from orix.quaternion import Rotation
 
+from kikuchipy_geomdic.displacement import bin_pattern
+from kikuchipy_geomdic.geometry import copy_detector
 from kikuchipy_geomdic.maps import check_whole_map, navigation_shape
 
 # Defined in kikuchipy_geomdic.phases; importable from here for existing code
@@ -50,7 +52,7 @@ from kikuchipy_geomdic.phases import (  # noqa: F401
     replace_phase,
 )
 
-__all__ = ["usable_points", "reindex"]
+__all__ = ["usable_points", "reindex", "refine_orientations"]
 
 
 def usable_points(xmap: CrystalMap, phase_id: int | None = None) -> np.ndarray:
@@ -228,12 +230,110 @@ def reindex(
     det = detector.deepcopy()
     if det.navigation_size > 1 and det.navigation_shape != nav:
         det.pc = det.pc.reshape(nav + (3,))
-    out = (
-        contextlib.nullcontext() if show_progressbar else contextlib.redirect_stdout(io.StringIO())
-    )
-    with out:
+    with contextlib.nullcontext() if show_progressbar else _quiet():
         ref = signal.refine_orientation(kx, det, master_pattern, energy, **refine_kwargs)
     return _merge(xmap, ref, flat, phase_id, mp_phase)
+
+
+def refine_orientations(
+    patterns: np.ndarray,
+    rotations: Rotation,
+    detector: EBSDDetector,
+    master_pattern: EBSDMasterPattern,
+    energy: float,
+    phase,
+    binning: int = 1,
+    **refine_kwargs: Any,
+) -> CrystalMap:
+    """Refine the orientations of a stack of patterns, quietly.
+
+    A stack (the calibration points of a map, say) is refined with
+    kikuchipy's :meth:`~kikuchipy.signals.EBSD.refine_orientation` as a
+    1D map, without kikuchipy's summary and progress bar.
+
+    Parameters
+    ----------
+    patterns
+        Patterns (N, rows, columns).
+    rotations
+        Starting orientations (N,).
+    detector
+        Detector of the full-resolution patterns with one PC or N PCs.
+    master_pattern, energy
+        Lambert master pattern of *phase* and beam energy in kV.
+    phase
+        orix :class:`~orix.crystal_map.Phase` of the patterns.
+    binning
+        Refine on patterns binned by this factor, which must divide the
+        pattern shape (the PC fractions stay the same).
+    **refine_kwargs
+        Passed to :meth:`~kikuchipy.signals.EBSD.refine_orientation`.
+
+    Returns
+    -------
+    xmap
+        1D :class:`~orix.crystal_map.CrystalMap` of the N refined
+        orientations with their ``scores``.
+
+    Examples
+    --------
+    The four patterns of a 2 x 2 synthetic map, refined at their true
+    PCs:
+
+    >>> from kikuchipy_geomdic import synthetic
+    >>> from kikuchipy_geomdic.reindex import refine_orientations
+    >>> sm = synthetic.synthetic_map("Si", (2, 2), shape=(40, 40), seed=0)
+    >>> patterns, mp = sm.signal.data.reshape(4, 40, 40), sm.master_pattern
+    >>> det = sm.geometry.detector([[0, 0], [0, 1], [1, 0], [1, 1]])
+    >>> xmap = refine_orientations(patterns, sm.start_xmap.rotations, det, mp, 20, mp.phase)
+    >>> len(xmap.scores), bool(xmap.scores.min() > 0.99)
+    (4, True)
+    """
+    patterns = np.asarray(patterns)
+    if binning > 1:
+        # Averaged in the patterns' own floating type, as kikuchipy would
+        patterns = bin_pattern(patterns, binning, np.result_type(patterns.dtype, np.float32))
+        detector = copy_detector(
+            detector, shape=patterns.shape[1:], binning=detector.binning * binning
+        )
+    signal, xmap = _stack_signal(patterns, rotations, phase)
+    with _quiet():
+        return signal.refine_orientation(xmap, detector, master_pattern, energy, **refine_kwargs)
+
+
+def _stack_signal(patterns: np.ndarray, rotations: Rotation, phase) -> tuple[EBSD, CrystalMap]:
+    """Return a stack of patterns as a 1D map and a crystal map of it.
+
+    Parameters
+    ----------
+    patterns
+        Patterns (N, rows, columns).
+    rotations
+        Orientations (N,).
+    phase
+        orix :class:`~orix.crystal_map.Phase` of every point.
+
+    Returns
+    -------
+    signal
+        :class:`~kikuchipy.signals.EBSD` with one navigation axis "x".
+    xmap
+        :class:`~orix.crystal_map.CrystalMap` with points at x = 0, 1, ...
+    """
+    n = len(patterns)
+    signal = EBSD(patterns)
+    # kikuchipy matches the crystal map's x coordinates to this axis
+    signal.axes_manager.navigation_axes[0].name = "x"
+    xmap = CrystalMap(
+        rotations=rotations, x=np.arange(n, dtype=float), phase_list=PhaseList(phase)
+    )
+    return signal, xmap
+
+
+def _quiet():
+    """Context in which kikuchipy's summaries and progress bars, which go
+    to stdout, are not shown."""
+    return contextlib.redirect_stdout(io.StringIO())
 
 
 def _merge(xmap, ref, flat, phase_id, mp_phase) -> CrystalMap:

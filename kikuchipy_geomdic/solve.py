@@ -208,7 +208,8 @@ class JointUpdate:
     Attributes
     ----------
     delta
-        Geometry update (K,), in parameter units.
+        Geometry update (K,), in parameter units, in the order of the
+        parameters solved for.
     rotations
         Rotation updates (N, 3) in radians: rotation vectors of the right
         factor ``T`` of each orientation, ``g -> g * T``.

@@ -40,9 +40,7 @@ Data and credits
 """
 from __future__ import annotations
 
-import contextlib
 import functools
-import io
 from collections.abc import Mapping
 from dataclasses import dataclass
 from importlib import resources
@@ -62,6 +60,7 @@ from kikuchipy_geomdic.geometry import (
     rotation_vectors,
     rotations_from_vectors,
 )
+from kikuchipy_geomdic.reindex import _quiet
 from kikuchipy_geomdic.simulation import check_master_pattern, simulate_patterns
 
 __all__ = [
@@ -78,6 +77,8 @@ __all__ = [
     "DEFAULT_PERTURBATION",
     "SyntheticMap",
     "synthetic_map",
+    "MIN_PRIOR",
+    "centred_prior",
     "degrade_patterns",
 ]
 
@@ -400,8 +401,9 @@ def default_geometry(
     *field_of_view* micrometres wide: large enough that the PC moves by
     about 1.5 % of the detector width across the map, as it does at low
     magnification on a real microscope. This is what makes the angles
-    observable (field notes: with per-point orientations, the angles are
-    seen only through the PC field).
+    observable: for one pattern a change of tilt, azimuthal or twist is
+    reproduced exactly by a change of orientation, so with per-point
+    orientations the angles are seen only through the PC field.
 
     Parameters
     ----------
@@ -484,10 +486,64 @@ class SyntheticMap:
     energy: float
     start: str = "centred"
 
+    def refine_geometry(self, **kwargs):
+        """Calibrate the map from its start with
+        :func:`~kikuchipy_geomdic.refinement.refine_geometry_dic`.
+
+        Parameters
+        ----------
+        **kwargs
+            Further arguments of
+            :func:`~kikuchipy_geomdic.refinement.refine_geometry_dic`.
+
+        Returns
+        -------
+        result
+            :class:`~kikuchipy_geomdic.refinement.GeometryRefinementResult`.
+        """
+        from kikuchipy_geomdic.refinement import refine_geometry_dic
+
+        return refine_geometry_dic(
+            self.signal, self.start_xmap, self.start_detector, self.master_pattern, self.energy,
+            **kwargs,
+        )
+
 
 #: Start models of :func:`synthetic_map`: how the starting orientations
 #: are made from the true ones.
 START_MODELS = ("centred", "uncentred", "indexed")
+
+#: Smallest orientation prior (deg) for a centred start: a start equal to
+#: the truth is believed to within this, rather than exactly.
+MIN_PRIOR = 0.05
+
+
+def centred_prior(orientation_error: float) -> float:
+    """Return the ``orientation_prior`` matching a centred start.
+
+    A "centred" start (:func:`synthetic_map`, the paper's study design)
+    scatters the true orientations by *orientation_error* with no common
+    part, so the refinement may believe the start to within that error,
+    but never to better than :data:`MIN_PRIOR`.
+
+    Parameters
+    ----------
+    orientation_error
+        RMS error (deg) of the starting orientations.
+
+    Returns
+    -------
+    prior
+        ``orientation_prior`` (deg) of
+        :func:`~kikuchipy_geomdic.refinement.refine_geometry_dic`.
+
+    Examples
+    --------
+    >>> from kikuchipy_geomdic.synthetic import centred_prior
+    >>> centred_prior(0.3), centred_prior(0)
+    (0.3, 0.05)
+    """
+    return max(float(orientation_error), MIN_PRIOR)
 
 
 def synthetic_map(
@@ -684,11 +740,12 @@ def synthetic_map(
 def _refine_orientations(signal, xmap, detector, master_pattern, energy) -> Rotation:
     # kikuchipy's orientation refinement at fixed (per-point) PCs, as a
     # user would run it after indexing at the nominal geometry: default
-    # method (SciPy Nelder-Mead) and no trust region, which can stall on
-    # small Euler angles (field notes). It builds a dask graph over the
-    # signal's chunks (lazy signals are simulated chunk by chunk) and
-    # prints a summary and a progress bar to stdout
-    with contextlib.redirect_stdout(io.StringIO()):
+    # method (SciPy Nelder-Mead) and no trust region, because with a trust
+    # region SciPy builds the first simplex from 5 % of each start value,
+    # clipped to the bounds, and stalls on orientations with a small Euler
+    # angle (Phi near 2 deg). It builds a dask graph over the signal's
+    # chunks, so a lazy signal is simulated chunk by chunk
+    with _quiet():
         refined = signal.refine_orientation(xmap, detector, master_pattern, energy)
     return refined.rotations.flatten()
 
@@ -849,7 +906,7 @@ def _kinematical(p: Phase, energy, half_size, min_dspacing) -> EBSDMasterPattern
     from kikuchipy.simulations import KikuchiPatternSimulator
 
     g = ReciprocalLatticeVector.from_min_dspacing(p.deepcopy(), min_dspacing)
-    # Without sanitising, Si gets a wrong F(200) (field notes)
+    # Without sanitising, Si gets a non-zero F(200), a forbidden reflection
     g.sanitise_phase()
     g.calculate_structure_factor()
     f = abs(g.structure_factor)

@@ -1,5 +1,5 @@
-"""Tests of :mod:`kikuchipy_geomdic.cli` (issue: real-data workflow,
-robustness).
+"""Tests of :mod:`kikuchipy_geomdic.cli`: the real-data workflow and its
+robustness.
 
 The data are made here: a synthetic silicon map (4 x 5 patterns of 60 x 60
 px, known geometry and orientations) written as a kikuchipy h5ebsd file

@@ -1,4 +1,4 @@
-"""Tests of :mod:`kikuchipy_geomdic.conventions` (issue: convention-safe export).
+"""Tests of :mod:`kikuchipy_geomdic.conventions`: convention-safe export.
 
 Every PC convention kikuchipy knows is exported and re-imported, as a
 record, as a detector file of kikuchipy's text format and through the JSON

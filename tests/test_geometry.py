@@ -31,7 +31,6 @@ from kikuchipy_geomdic.geometry import (
     forward_map,
     pc_field,
     sample_to_detector_matrix,
-    update_detector,
 )
 
 ANGLE_NAMES = ("tilt", "azimuthal", "sample_tilt", "twist")
@@ -550,70 +549,59 @@ def test_forward_map_matches_tracking(mp, rotations, track_a, name):
 
 
 # --------------------------------------------------------------------- #
-# 5. update_detector and check_parameters
+# 5. MapGeometry.updated and check_parameters
 # --------------------------------------------------------------------- #
 
 
 @pytest.fixture
-def pc_map_detector():
-    rng = np.random.default_rng(1)
-    pc = np.array([0.5, 0.3, 0.6]) + rng.uniform(-0.02, 0.02, (3, 4, 3))
-    return EBSDDetector((60, 80), px_size=55.0, binning=2, tilt=3.0,
-                        azimuthal=1.5, sample_tilt=69.0, twist=0.7, pc=pc)
+def map_geometry():
+    return MapGeometry(pc=(0.5, 0.3, 0.6), shape=(60, 80), px_size=55.0, binning=2,
+                       step_sizes=(10, 10), navigation_shape=(3, 4), tilt=3.0,
+                       azimuthal=1.5, sample_tilt=69.0, twist=0.7)
 
 
-def test_update_detector(pc_map_detector):
-    det = pc_map_detector
-    pc0 = det.pc.copy()
-    angles0 = {a: getattr(det, a) for a in ANGLE_NAMES}
+def test_updated(map_geometry):
+    geo = map_geometry
     delta = {"pcx": 0.01, "pcz": -0.02, "tilt": 1.0, "twist": -0.2}
-    new = update_detector(det, delta)
-    assert new is not det
-    assert new.shape == det.shape == (60, 80)
-    assert new.px_size == 55.0 and new.binning == 2
-    assert new.navigation_shape == (3, 4)
-    assert_allclose(new.pc, pc0 + [0.01, 0.0, -0.02], rtol=0, atol=1e-15)
+    new = geo.updated(delta)
+    assert new is not geo
+    for name in ("shape", "px_size", "binning", "step_sizes", "navigation_shape", "reference"):
+        assert getattr(new, name) == getattr(geo, name), name
+    assert_allclose(new.pc, np.array(geo.pc) + [0.01, 0.0, -0.02], rtol=0, atol=1e-15)
     assert new.tilt == pytest.approx(4.0)
     assert new.twist == pytest.approx(0.5)
     assert new.azimuthal == 1.5 and new.sample_tilt == 69.0
     # Input not modified
-    np.testing.assert_array_equal(det.pc, pc0)
-    assert {a: getattr(det, a) for a in ANGLE_NAMES} == angles0
+    assert geo.pc == (0.5, 0.3, 0.6) and geo.angles == (3.0, 1.5, 69.0, 0.7)
     # Every parameter
     for name in PARAMETERS:
-        one = update_detector(det, {name: 0.25})
+        one = geo.updated({name: 0.25})
         if name.startswith("pc"):
             k = "xyz".index(name[-1])
-            assert_allclose(one.pc[..., k], pc0[..., k] + 0.25, atol=1e-15)
-            assert_allclose(np.delete(one.pc, k, axis=-1),
-                            np.delete(pc0, k, axis=-1), atol=0)
+            assert one.pc[k] == pytest.approx(geo.pc[k] + 0.25, abs=1e-15)
+            assert np.delete(one.pc, k).tolist() == np.delete(geo.pc, k).tolist()
         else:
             for a in ANGLE_NAMES:
-                want = angles0[a] + (0.25 if a == name else 0.0)
+                want = getattr(geo, a) + (0.25 if a == name else 0.0)
                 assert getattr(one, a) == pytest.approx(want, abs=1e-12)
 
 
-def test_update_detector_single_pc_keeps_twist():
-    det = EBSDDetector((60, 60), pc=(0.5, 0.5, 0.5), twist=0.3)
-    new = update_detector(det, {"pcz": 0.01, "tilt": 1})
-    assert new.pcz[0] == pytest.approx(0.51)
-    assert new.tilt == 1.0 and new.twist == 0.3
-    assert new.navigation_shape == det.navigation_shape
+def test_updated_detector_keeps_twist(map_geometry):
+    new = map_geometry.updated({"pcz": 0.01, "tilt": 1})
+    det = new.detector()
+    assert det.tilt == 4.0 and det.twist == 0.7
+    assert det.navigation_shape == (3, 4)
+    assert new.pc_at([new.reference])[0, 2] == pytest.approx(0.61)
 
 
-def test_update_detector_empty_delta_is_a_copy(pc_map_detector):
-    det = pc_map_detector
-    new = update_detector(det, {})
-    assert new is not det and new.pc is not det.pc
-    np.testing.assert_array_equal(new.pc, det.pc)
-    for a in ANGLE_NAMES:
-        assert getattr(new, a) == getattr(det, a)
-    assert (new.shape, new.px_size, new.binning) == (det.shape, det.px_size, det.binning)
+def test_updated_empty_delta_is_equal(map_geometry):
+    new = map_geometry.updated({})
+    assert new == map_geometry
 
 
-def test_update_detector_unknown_parameter(pc_map_detector):
+def test_updated_unknown_parameter(map_geometry):
     with pytest.raises(ValueError, match="Unknown geometry parameter"):
-        update_detector(pc_map_detector, {"pcx": 0.1, "roll": 1.0})
+        map_geometry.updated({"pcx": 0.1, "roll": 1.0})
 
 
 def test_check_parameters():

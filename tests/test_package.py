@@ -1,5 +1,5 @@
 """Tests of the package as distributed: the wheel's contents and the
-registration of ``EBSD.refine_geometry_dic`` (issue: mergeable upstream).
+registration of ``EBSD.refine_geometry_dic``.
 
 The wheel is built from a copy of the source tree (so that the build
 leaves nothing in the working tree) with ``pip wheel``, which fetches the

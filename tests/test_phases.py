@@ -1,6 +1,5 @@
 """Tests of :mod:`kikuchipy_geomdic.phases`: the one rule that decides
-whether a crystal map's phase is the master pattern's (issue: mergeable
-upstream).
+whether a crystal map's phase is the master pattern's.
 
 Silicon read back from an ``.ang`` file has point group 432 and a lattice
 in angstrom; the master pattern's phase has m-3m (and, from EMsoft, nm):

@@ -1,5 +1,5 @@
-"""Tests of :mod:`kikuchipy_geomdic.reindex` (issue: whole-map reindexing,
-scale, robustness).
+"""Tests of :mod:`kikuchipy_geomdic.reindex`: whole-map reindexing at scale,
+and its robustness.
 
 Maps are synthetic (4 x 5 patterns of 60 x 60 px) with known orientations;
 the starting orientations are 0.3 deg off, so refinement has to work for

@@ -25,7 +25,8 @@ class TestMasterPattern:
         assert np.isfinite(mp.data).all() and mp.data.std() > 0
 
     def test_kinematical_si_has_no_forbidden_200(self):
-        # Without sanitise_phase, Si gets a non-zero F(200) (field notes)
+        # Without sanitise_phase, Si gets a non-zero F(200), a reflection the
+        # diamond structure forbids
         from diffsims.crystallography import ReciprocalLatticeVector
 
         g = ReciprocalLatticeVector(synthetic.phase("Si"), hkl=[[2, 0, 0], [1, 1, 1]])

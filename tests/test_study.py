@@ -1,5 +1,4 @@
-"""The validation harness: a small perturbation grid and method comparison
-scored against the truth (issue: validation harness and benchmarks).
+"""The perturbation study: a small grid scored against the truth.
 
 The grid is one pair (pcz, tilt) x {0, +-d/2} on a 4 x 4 map of 48 x 48
 patterns, all six parameters free, so the test runs in well under a
@@ -10,8 +9,8 @@ import matplotlib
 import numpy as np
 import pytest
 
+from kikuchipy_geomdic import study as st
 from kikuchipy_geomdic import synthetic
-from kikuchipy_geomdic import validation as val
 
 NAV = (4, 4)
 SHAPE = (48, 48)
@@ -20,14 +19,14 @@ REFINE = dict(max_iterations=4, refine_kwargs=dict(trust_region=[1, 1, 1]))
 
 @pytest.fixture(scope="module")
 def study(si_mp):
-    return val.perturbation_study(
+    return st.perturbation_study(
         si_mp,
         pairs=[("pcz", "tilt")],
         levels=(-0.5, 0.0, 0.5),
         navigation_shape=NAV,
         shape=SHAPE,
         orientations="random",
-        base_geometry=val.paper_geometry(NAV, SHAPE),
+        base_geometry=st.paper_geometry(NAV, SHAPE),
         refine_kwargs=REFINE,
     )
 
@@ -82,7 +81,7 @@ def test_summary_plots_and_csv(study, tmp_path):
     assert s["success_below_4%"] == "9/9"
     path = tmp_path / "study.csv"
     study.save(path)
-    back = val.read_table(path)
+    back = st.read_table(path)
     assert back.dtype == study.table.dtype
     np.testing.assert_allclose(back["final_ncc"], study.table["final_ncc"], rtol=1e-6)
     assert back["success"].tolist() == study.table["success"].tolist()
@@ -94,7 +93,7 @@ def test_summary_plots_and_csv(study, tmp_path):
         study.plot_normalised_errors(("pcz", "tilt")),
     ):
         assert isinstance(fig, matplotlib.figure.Figure)
-    assert "| runs |" in val.format_table([s])
+    assert "| runs |" in st.format_table([s])
 
 
 def test_model_displacement_matches_measured(si_mp):
@@ -102,48 +101,16 @@ def test_model_displacement_matches_measured(si_mp):
     # Eq. 2) agrees with what DIC measures between patterns simulated with
     # the true orientations at both geometries; averaging over every
     # pixel (no empty ROIs) gives more
-    geo = val.paper_geometry((3, 3), (60, 60))
+    geo = st.paper_geometry((3, 3), (60, 60))
     other = geo.updated({"pcz": 0.02, "tilt": 0.5})
     sm = synthetic.synthetic_map(si_mp, (3, 3), geometry=geo, perturbation={},
                                  orientation_error=0, shape=(60, 60), seed=2)
     pts = np.stack([a.ravel() for a in np.indices((3, 3))], axis=1)
-    model, measured = val.eq2_displacement(si_mp, sm.xmap.rotations, geo, other, pts)
+    model, measured = st.eq2_displacement(si_mp, sm.xmap.rotations, geo, other, pts)
     assert model == pytest.approx(measured, rel=0.1)
-    assert val.mean_displacement(geo, other, pts) > model
+    assert st.mean_displacement(geo, other, pts) > model
 
 
 def test_bad_pair_raises():
     with pytest.raises(ValueError, match="Pair"):
-        val.perturbation_study("Si", pairs=[("pcx", "nonsense")])
-
-
-def test_compare_methods(si_mp):
-    sm = synthetic.synthetic_map(si_mp, (3, 3), orientations="random", shape=(48, 48), seed=3)
-    rows = val.compare_methods(
-        sm,
-        points=9,
-        methods=("dic", "nelder-mead", "differential-evolution"),
-        method_points={"differential-evolution": 2},
-        de_kwargs=dict(seed=0, maxiter=3, popsize=4),
-        refine_kwargs=dict(max_iterations=4),
-    )
-    by = {r["method"]: r for r in rows}
-    assert list(by) == ["dic", "nelder-mead", "differential-evolution"]
-    for r in rows:
-        for key in ("time", "time_per_point", "time_at_n", "max_pc_error",
-                    "misorientation", "disorientation", "ncc", "err_tilt_difference"):
-            assert np.isfinite(r[key]), (r["method"], key)
-    assert by["differential-evolution"]["n_points"] == 2
-    assert by["differential-evolution"]["extrapolated"]
-    assert by["differential-evolution"]["time_at_n"] == pytest.approx(
-        by["differential-evolution"]["time_per_point"] * 9
-    )
-    # Pattern-wise methods cannot change the angles: their angle errors
-    # are the start's
-    start_err = sm.start_geometry.tilt - sm.geometry.tilt
-    assert by["nelder-mead"]["err_tilt"] == pytest.approx(start_err)
-    # DIC recovers the geometry against the truth
-    assert by["dic"]["max_pc_error"] < 1e-3
-    assert abs(by["dic"]["err_tilt_difference"]) < 0.1
-    with pytest.raises(ValueError, match="Unknown method"):
-        val.compare_methods(sm, points=9, methods=["powell"])
+        st.perturbation_study("Si", pairs=[("pcx", "nonsense")])
