@@ -47,18 +47,31 @@ refinement inside the loop and NCC acceptance, with these departures:
   ``ncc_tolerance`` and the displacement no longer falls by 10 %.
 - *Jacobian.* ``"analytic"`` evaluates the forward displacement map at the
   measured feature positions instead of simulating at ``p +- delta``.
+Layout
+------
+As kikuchipy's :meth:`~kikuchipy.signals.EBSD.refine_orientation`:
+:func:`refine_geometry_dic` checks its inputs (:func:`_check_options`,
+:func:`_check_inputs`), selects the calibration points
+(:func:`_select_points`), freezes everything that stays fixed into a
+:class:`_Problem` (:func:`_prepare_problem`), runs one of the loops
+(:func:`_joint_loop`, one :func:`_joint_step` per iteration, or
+:func:`_paper_loop`) on frozen :class:`_State` s and builds the
+:class:`GeometryRefinementResult` (:func:`_build_result`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+import sys
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable, Mapping, Sequence
 
+import hyperspy.api as hs
 import numpy as np
 from kikuchipy.detectors import EBSDDetector
 from kikuchipy.signals import EBSD, EBSDMasterPattern
 from orix.crystal_map import CrystalMap, PhaseList
 from orix.quaternion import Rotation
+from tqdm import tqdm
 
 from kikuchipy_geomdic import displacement as dsp
 from kikuchipy_geomdic.geometry import (
@@ -377,6 +390,136 @@ def _check_inputs(signal, xmap, detector, master_pattern, phase, nav):
     return check_phase(xmap, master_pattern, phase)
 
 
+def _check_options(parameters, solver, jacobian, orientation_prior) -> tuple[str, ...]:
+    """Check the options that need no data; return the parameters to
+    refine in canonical order."""
+    names = check_parameters(parameters)
+    if solver not in SOLVERS:
+        raise ValueError(f"solver must be one of {SOLVERS}, not {solver!r}")
+    if jacobian not in _JACOBIANS:
+        raise ValueError(f"jacobian must be one of {_JACOBIANS}, not {jacobian!r}")
+    if orientation_prior is not None and not (
+        np.isfinite(orientation_prior) and orientation_prior > 0
+    ):
+        raise ValueError(
+            f"orientation_prior must be a positive RMS angle in degrees or None, "
+            f"not {orientation_prior}"
+        )
+    return names
+
+
+def _check_steps(names: Sequence[str], steps: Mapping[str, float] | None) -> dict[str, float]:
+    """Central-difference steps of the refined parameters: the defaults
+    updated by *steps*, all positive."""
+    step_all = dict(DEFAULT_STEPS)
+    if steps:
+        check_parameters(list(steps))
+        step_all.update({k: float(v) for k, v in steps.items()})
+    if any(step_all[n] <= 0 for n in names):
+        raise ValueError("Finite-difference steps must be positive")
+    return {n: step_all[n] for n in names}
+
+
+def _select_points(
+    points, xmap: CrystalMap, phase_id: int, nav: tuple[int, int], names: Sequence[str]
+) -> np.ndarray:
+    """The calibration points (N, 2): *points* spread over the usable map
+    points, or the explicit array checked; enough for the parameters."""
+    pts = _points(points, usable_points(xmap, phase_id).reshape(nav), nav)
+    n_free = len(_solved_parameters(names)[0])
+    if len(pts) < max(n_free, 2):
+        raise ValueError(
+            f"{len(pts)} usable calibration point(s) for {n_free} independent "
+            "parameter(s): at least as many points as parameters (and 2) are needed"
+        )
+    return pts
+
+
+def _points(points, usable: np.ndarray, nav: tuple[int, int]) -> np.ndarray:
+    if np.ndim(points) == 0:
+        return calibration_points(nav, int(points), usable)
+    pts = np.asarray(points)
+    if pts.ndim != 2 or pts.shape[1] != 2 or not np.issubdtype(pts.dtype, np.integer):
+        raise ValueError("points must be an int or an (N, 2) integer array of (row, col)")
+    outside = (pts < 0).any(axis=1) | (pts[:, 0] >= nav[0]) | (pts[:, 1] >= nav[1])
+    if outside.any():
+        raise ValueError(
+            f"{outside.sum()} point(s) lie outside the map of shape {nav}, e.g. "
+            f"{pts[outside][0].tolist()}"
+        )
+    bad = ~usable[pts[:, 0], pts[:, 1]]
+    if bad.any():
+        raise ValueError(
+            f"{bad.sum()} point(s) are not indexed with the chosen phase, e.g. "
+            f"{pts[bad][0].tolist()}"
+        )
+    return pts
+
+
+def _experimental(signal: EBSD, pts: np.ndarray, nav: tuple[int, int]) -> np.ndarray:
+    data = signal.data
+    if len(signal.axes_manager.navigation_shape) == 1:
+        sel = data[pts[:, 1]]
+    else:
+        # Sorted, unique row-major indices read a lazy signal chunk-wise
+        data = data.reshape((nav[0] * nav[1],) + data.shape[-2:])
+        sel = data[flat_index(pts, nav)]
+    if hasattr(sel, "compute"):
+        sel = sel.compute()
+    sel = np.asarray(sel, dtype=np.float32)
+    bad = ~np.isfinite(sel).all(axis=(1, 2))
+    if bad.any():
+        raise ValueError(
+            f"{bad.sum()} calibration pattern(s) contain NaN or infinite values, e.g. "
+            f"at (row, col) {pts[bad][0].tolist()}: remove them from xmap or pass "
+            "explicit points"
+        )
+    return sel
+
+
+def _prepare_problem(
+    signal: EBSD,
+    xmap: CrystalMap,
+    master_pattern: EBSDMasterPattern,
+    energy: float,
+    names: tuple[str, ...],
+    points,
+    phase_id: int,
+    nav: tuple[int, int],
+    steps: Mapping[str, float] | None,
+    dic_kwargs: dict,
+    refine_kwargs: Mapping[str, Any] | None,
+    pseudo_symmetry_ops: Rotation | None,
+) -> _Problem:
+    """Check the steps, select the points, read their patterns and
+    starting orientations: the :class:`_Problem` the loops solve."""
+    steps = _check_steps(names, steps)
+    ref_kw = dict(refine_kwargs or {})
+    ops = ref_kw.pop("pseudo_symmetry_ops", None)
+    if pseudo_symmetry_ops is not None:
+        ops = pseudo_symmetry_ops
+    pts = _select_points(points, xmap, phase_id, nav, names)
+    exp = _experimental(signal, pts, nav)
+    lookup = np.full(nav[0] * nav[1], -1)
+    lookup[xmap.id] = np.arange(xmap.size)
+    return _Problem(
+        experimental=exp,
+        points=pts,
+        start_rotations=Rotation(xmap.rotations.data[lookup[flat_index(pts, nav)]]),
+        master_pattern=master_pattern,
+        energy=float(energy),
+        # The master pattern's phase, checked to match xmap's: kikuchipy
+        # refuses phases whose atom lists differ in order (as after a
+        # round trip through an h5ebsd file)
+        phase=master_pattern.phase.deepcopy(),
+        parameters=names,
+        steps=steps,
+        dic_kwargs=dic_kwargs,
+        refine_kwargs=ref_kw,
+        pseudo_symmetry_ops=None if ops is None else Rotation(ops).flatten(),
+    )
+
+
 # --------------------------------------------------------------------- #
 # The problem: everything that stays fixed during a refinement
 # --------------------------------------------------------------------- #
@@ -419,6 +562,51 @@ MIN_FALL = 0.1
 #: Largest number of trial steps, each with ten times the damping of the
 #: one before, before an iteration gives up.
 MAX_TRIALS = 3
+
+#: Factor by which the damping grows after a rejected trial step and
+#: shrinks after an accepted one: Levenberg-Marquardt's usual tenfold,
+#: so that :data:`MAX_TRIALS` trials span three decades.
+DAMPING_FACTOR = 10
+
+#: Paper solver: lambda of Eq. 10 when *damping* is not given, a light
+#: damping that leaves a well-conditioned Gauss-Newton step almost as is.
+PAPER_DAMPING = 1e-3
+
+#: Joint solver: the smallest damping a rejected step is retried with.
+#: The default start is Gauss-Newton (damping 0), which tenfold growth
+#: alone would never leave; the paper solver's default damping.
+MIN_RETRY_DAMPING = PAPER_DAMPING
+
+#: Paper solver: an accepted step that gains less NCC than
+#: ``ncc_tolerance`` and lowers the mean displacement by less than this
+#: fraction ends the loop: the displacement no longer falls by 10 %.
+PAPER_MIN_FALL = 0.1
+
+#: Paper solver: a point whose refined orientation lies further than this
+#: (degrees) from its start is no small deviation (another variant not
+#: among the operators, or a failed refinement) and is left out of the
+#: mean rotation removed by the anchoring.
+ANCHOR_MAX_ANGLE = 5.0
+
+#: Paper solver: smallest side (px) the patterns are binned down to for
+#: the orientation refinements inside the loop. Orientations refined from
+#: 60 px patterns were as precise (0.0025 deg) as from 120 px ones
+#: (0.0022 deg) at a quarter of the cost.
+LOOP_MIN_SIZE = 60
+
+#: Unknowns per pattern besides the geometry (its small rotation): the
+#: degrees of freedom its residuals lose when its variance is estimated.
+ROTATION_UNKNOWNS = 3
+
+#: Vector variance (px^2) assumed for every pattern when none has enough
+#: vectors (more than :data:`ROTATION_UNKNOWNS` components) to estimate
+#: its own: all patterns then weigh the same, one square pixel each.
+FALLBACK_VARIANCE = 1.0
+
+#: Components of a null-space vector below this are SVD round-off, not
+#: part of the reported degenerate combination (the columns are
+#: normalised, so a real component is of order one).
+NULL_SPACE_TOLERANCE = 1e-6
 
 
 @dataclass(frozen=True)
@@ -476,12 +664,11 @@ class _Problem:
     def loop_binning(self) -> int:
         """Binning of the orientation refinements inside the paper's loop:
         the largest factor dividing the pattern shape that keeps at least
-        60 px a side. Orientations refined from 60 px patterns were as
-        precise (0.0025 deg) as from 120 px ones (0.0022 deg) at a quarter
-        of the cost; the final orientations use full resolution."""
+        :data:`LOOP_MIN_SIZE` px a side; the final orientations use full
+        resolution."""
         ny, nx = self.experimental.shape[1:]
         b = 1
-        for f in range(2, min(ny, nx) // 60 + 1):
+        for f in range(2, min(ny, nx) // LOOP_MIN_SIZE + 1):
             if ny % f == 0 and nx % f == 0:
                 b = f
         return b
@@ -504,6 +691,11 @@ class _Problem:
         k = np.argmin(angles, axis=1)
         return k, ~(ops_all[k] * self.start_rotations) * rotations
 
+    def rotation_offsets(self, rotations: Rotation) -> np.ndarray:
+        """Rotation vectors (N, 3) of *rotations* away from the start (its
+        closest variant): the offsets of the orientation prior."""
+        return rotation_vectors(self.variants(rotations)[1])
+
     def best_variants(self, geometry: MapGeometry, rotations: Rotation) -> Rotation:
         """Return per point the variant ``op * rotation`` whose simulated
         pattern correlates best with the experimental one."""
@@ -524,6 +716,53 @@ class _Problem:
         return analytic_jacobian(
             geometry, self.points, field0.positions, field0.counts, self.parameters, self.steps
         )
+
+
+
+# --------------------------------------------------------------------- #
+# The state: where a refinement stands
+# --------------------------------------------------------------------- #
+
+
+@dataclass(frozen=True)
+class _State:
+    """A geometry and orientations, with the displacement field and the
+    NCC (N,) of the patterns simulated there against the experimental ones."""
+
+    geometry: MapGeometry
+    rotations: Rotation
+    field: dsp.DisplacementField
+    scores: np.ndarray
+
+    @classmethod
+    def measure(cls, problem: _Problem, geometry: MapGeometry, rotations: Rotation) -> _State:
+        """The state at *geometry* and *rotations*, from one simulation."""
+        fld, scores = problem.compare(geometry, rotations)
+        return cls(geometry=geometry, rotations=rotations, field=fld, scores=scores)
+
+
+@dataclass(frozen=True)
+class _PaperState(_State):
+    """The paper solver's state: *rotations* are the anchored ones the
+    field is measured with, *refined* those kikuchipy refined at
+    *geometry* (their mean NCC *ncc*); *disp* is the objective."""
+
+    refined: Rotation
+    ncc: float
+    disp: float
+
+
+@dataclass(frozen=True)
+class _LoopOutcome:
+    """What a loop returns: the final state, one history record per trial
+    step, whether it converged, the field at the start and the parameters
+    kept at their value in the last iteration."""
+
+    state: _State
+    history: list[dict[str, Any]]
+    converged: bool
+    field_before: dsp.DisplacementField
+    kept: tuple[str, ...]
 
 
 def _ncc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -608,8 +847,10 @@ def _pattern_variances(
     c = np.repeat(field.counts, 2, axis=1)
     m = (c > 0).sum(axis=1)
     rss = (c * r**2).sum(axis=1)
-    var = np.where(m > 3, rss / np.maximum(m - 3, 1), np.nan)
-    floor = np.nanmedian(var) if np.isfinite(var).any() else 1.0
+    var = np.where(
+        m > ROTATION_UNKNOWNS, rss / np.maximum(m - ROTATION_UNKNOWNS, 1), np.nan
+    )
+    floor = np.nanmedian(var) if np.isfinite(var).any() else FALLBACK_VARIANCE
     floor = max(floor, MIN_VARIANCE)
     return np.where(np.isfinite(var), np.maximum(var, floor), floor)
 
@@ -658,104 +899,194 @@ def _step_record(it, names, geometry, ncc_before, ncc_after, before, after, damp
     )
 
 
-def _joint_loop(problem, geometry0, rotations0, prior, damping, max_iterations, say):
-    """The joint refinement; returns the final state, history, whether it
-    converged, the first field and the parameters kept at their start."""
+
+def _prior_per_axis(prior: float | None) -> float | None:
+    """The RMS orientation error *prior* (degrees, of the rotation angle)
+    as an RMS per rotation-vector axis in radians, the solve's unit."""
+    return None if prior is None else np.deg2rad(prior) / np.sqrt(3)
+
+
+@dataclass(frozen=True)
+class _JointCarry:
+    """What the joint loop carries from one iteration to the next.
+
+    Attributes
+    ----------
+    state
+        The current state.
+    damping
+        The Levenberg-Marquardt damping the next trial starts with.
+    hold
+        Whether poorly determined parameters still wait for the
+        determined ones to settle: far from the solution the standard
+        errors of a small map are not to be trusted (measured: a 4 x 4
+        map moved the azimuthal angle by 3.9 deg "at 3.2 sigma", away
+        from the truth).
+    settled
+        Whether the last step was within its standard errors or lowered
+        the displacement by less than :data:`MIN_FALL`.
+    kept
+        Parameters kept at their value in the last iteration (None
+        before the first).
+    """
+
+    state: _State
+    damping: float
+    hold: bool = True
+    settled: bool = False
+    kept: tuple[str, ...] | None = None
+
+
+@dataclass(frozen=True)
+class _JointStep:
+    """The outcome of one iteration of the joint loop: the carry for the
+    next, the history records of its trial steps, the parameters it kept
+    and why the loop ends, if it does: "converged" (settled, nothing left
+    to free) or "stalled" (no trial step lowered the displacement)."""
+
+    carry: _JointCarry
+    records: tuple[dict[str, Any], ...]
+    kept: tuple[str, ...]
+    end: str | None = None
+
+
+def _choose_free(
+    solved: Sequence[str], update: JointUpdate, carry: _JointCarry
+) -> tuple[bool, tuple[str, ...], tuple[str, ...]]:
+    """Split the *solved* parameters, from a solve with all of them, into
+    those kept at their value and those free to move; also return whether
+    poorly determined parameters are still held.
+
+    A parameter the map determines only poorly moves only by a
+    significant step, so that noise cannot walk it around. Far from the
+    solution the standard errors of a small map are not to be trusted
+    (measured: a 4 x 4 map moved the azimuthal angle by 3.9 deg "at 3.2
+    sigma", away from the truth), so poorly determined angles are held
+    until the PC has settled. The PC moves from the start however poorly
+    it is determined: the RMS judges its steps, and a start 2 % off must
+    not be kept because its sigma there is large."""
+    se = dict(zip(solved, update.standard_errors))
+    step = dict(zip(solved, update.delta))
+    poor = [n for n in solved if se[n] > DETERMINACY_LIMITS[n]]
+    hold = carry.hold and not carry.settled
+    weak = [n for n in poor if n not in _PC] if hold else []
+    if not hold or len(weak) == len(solved):
+        # Nothing else to settle first: significance alone decides
+        hold = False
+        weak = [n for n in poor if abs(step[n]) < SIGNIFICANCE * se[n]]
+    return hold, tuple(weak), tuple(n for n in solved if n not in weak)
+
+
+def _joint_step(
+    problem: _Problem,
+    carry: _JointCarry,
+    iteration: int,
+    prior: float | None,
+    report: Callable[[str], None],
+) -> _JointStep:
+    """One iteration of the joint loop: linearise at the current state,
+    choose the free parameters, then up to :data:`MAX_TRIALS` trial
+    solves with growing damping until one lowers the displacement."""
     names = problem.parameters
     solved, split = _solved_parameters(names)
-    prior_rad = None if prior is None else np.deg2rad(prior) / np.sqrt(3)
+    prior_rad = _prior_per_axis(prior)
+    state, lam = carry.state, carry.damping
+    # Linearise and solve with every parameter: standard errors and steps
+    offsets = problem.rotation_offsets(state.rotations)
+    linear = _linearise(problem, state.geometry, state.field, solved)
+    update, var = _joint_solve(state.field, linear, range(len(solved)), offsets, prior_rad, 0.0)
+    hold, weak, free = _choose_free(solved, update, carry)
+    carry = replace(carry, hold=hold)
+    # Settled, and no parameter has become determinable since
+    if (carry.settled and weak == carry.kept) or not free:
+        # Variants are told apart only near the solution: a wrong one
+        # is then re-fitted from its correct variant
+        rot = problem.best_variants(state.geometry, state.rotations)
+        if np.array_equal(rot.data, state.rotations.data) or not free:
+            return _JointStep(carry, (), weak, "converged")
+        state = _State.measure(problem, state.geometry, rot)
+        offsets = problem.rotation_offsets(rot)
+        linear = _linearise(problem, state.geometry, state.field, solved)
+    columns = [solved.index(n) for n in free]
+    # Trial solves. Steps are judged by the objective of the solve: each
+    # pattern weighted by its own precision, so one failed pattern cannot
+    # veto a step
+    before = _rms_displacement(state.field, var)
+    ncc_before = float(np.mean(state.scores))
+    records = []
+    for _ in range(MAX_TRIALS):
+        update, _ = _joint_solve(state.field, linear, columns, offsets, prior_rad, lam)
+        delta = _expand(dict(zip(free, update.delta)), split)
+        trial = _State.measure(
+            problem,
+            state.geometry.updated(delta),
+            state.rotations * rotations_from_vectors(update.rotations),
+        )
+        after = _rms_displacement(trial.field, var)
+        accepted = bool(after < before) or (
+            after < (1 + MIN_FALL) * before
+            and _consistent(
+                problem, trial.geometry, trial.field, free,
+                problem.rotation_offsets(trial.rotations), prior_rad,
+            )
+        )
+        ncc = float(np.mean(trial.scores)) if accepted else float("nan")
+        records.append(
+            _step_record(
+                iteration, names, trial.geometry, ncc_before, ncc, before, after, lam, accepted,
+                standard_errors=dict(zip(free, map(float, update.standard_errors))),
+                kept=weak,
+            )
+        )
+        report(
+            f"  iteration {iteration}: RMS displacement {100 * before:.4f} -> "
+            f"{100 * after:.4f} % of width, NCC {ncc_before:.4f} -> {ncc:.4f}, "
+            f"{'accepted' if accepted else 'rejected'}"
+            + (f" (kept: {', '.join(weak)})" if weak else "")
+        )
+        if accepted:
+            settled = _within_errors(update) or 1 - after / before < MIN_FALL
+            return _JointStep(
+                _JointCarry(trial, lam / DAMPING_FACTOR, hold, settled, weak),
+                tuple(records),
+                weak,
+            )
+        lam = max(DAMPING_FACTOR * lam, MIN_RETRY_DAMPING)
+    return _JointStep(_JointCarry(state, lam, hold, False, weak), tuple(records), weak, "stalled")
 
-    def offsets_of(rot):
-        _, dq = problem.variants(rot)
-        return rotation_vectors(dq)
 
-    field, scores = problem.compare(geometry0, rotations0)
-    state = dict(geometry=geometry0, rotations=rotations0, field=field, scores=scores)
-    field_before = field
-    history, converged, lam = [], False, damping
-    settled, kept, weak = False, None, []
-    # Far from the solution the standard errors of a small map are not
-    # to be trusted (measured: a 4 x 4 map moved the azimuthal angle by
-    # 3.9 deg "at 3.2 sigma", away from the truth), so poorly determined
-    # angles wait until the PC has settled. The PC moves from the start
-    # however poorly it is determined: the RMS judges its steps, and a
-    # start 2 % off must not be kept because its sigma there is large
-    hold = True
-    everything = range(len(solved))
+def _joint_loop(
+    problem: _Problem,
+    geometry0: MapGeometry,
+    prior: float | None,
+    damping: float,
+    max_iterations: int,
+    progress: _Progress,
+) -> _LoopOutcome:
+    """The joint refinement from *geometry0* and the starting orientations:
+    :func:`_joint_step` until it converges or stalls, or for
+    *max_iterations*."""
+    start = _State.measure(problem, geometry0, problem.start_rotations)
+    carry = _JointCarry(start, damping)
+    history: list[dict[str, Any]] = []
+    kept: tuple[str, ...] = ()
+    converged = False
     for it in range(max_iterations):
-        offsets = offsets_of(state["rotations"])
-        linear = _linearise(problem, state["geometry"], state["field"], solved)
-        update, var = _joint_solve(state["field"], linear, everything, offsets, prior_rad, 0.0)
-        # A parameter the map determines only poorly moves only by a
-        # significant step, so that noise cannot walk it around
-        se = dict(zip(solved, update.standard_errors))
-        step = dict(zip(solved, update.delta))
-        poor = [n for n in solved if se[n] > DETERMINACY_LIMITS[n]]
-        hold = hold and not settled
-        if hold:
-            weak = [n for n in poor if n not in _PC]
-        else:
-            weak = [n for n in poor if abs(step[n]) < SIGNIFICANCE * se[n]]
-        free = [n for n in solved if n not in weak]
-        # Settled, and no parameter has become determinable since
-        if (settled and weak == kept) or not free:
-            # Variants are told apart only near the solution: a wrong one
-            # is then re-fitted from its correct variant
-            rot = problem.best_variants(state["geometry"], state["rotations"])
-            if np.array_equal(rot.data, state["rotations"].data) or not free:
-                converged = True
-                break
-            field, scores = problem.compare(state["geometry"], rot)
-            state.update(rotations=rot, field=field, scores=scores)
-            offsets = offsets_of(rot)
-            linear = _linearise(problem, state["geometry"], field, solved)
-        settled, kept = False, weak
-        columns = [solved.index(n) for n in free]
-        # Steps are judged by the objective of the solve: each pattern
-        # weighted by its own precision, so one failed pattern cannot
-        # veto a step
-        before = _rms_displacement(state["field"], var)
-        ncc_before = float(np.mean(state["scores"]))
-        accepted = False
-        for _ in range(MAX_TRIALS):
-            update, _ = _joint_solve(state["field"], linear, columns, offsets, prior_rad, lam)
-            delta = _expand(dict(zip(free, update.delta)), split)
-            geo = state["geometry"].updated(delta)
-            rot = state["rotations"] * rotations_from_vectors(update.rotations)
-            fld, scores = problem.compare(geo, rot)
-            after = _rms_displacement(fld, var)
-            accepted = bool(after < before) or (
-                after < (1 + MIN_FALL) * before
-                and _consistent(problem, geo, fld, free, offsets_of(rot), prior_rad)
-            )
-            ncc = float(np.mean(scores)) if accepted else float("nan")
-            history.append(
-                _step_record(
-                    it, names, geo, ncc_before, ncc, before, after, lam, accepted,
-                    standard_errors=dict(zip(free, map(float, update.standard_errors))),
-                    kept=tuple(weak),
-                )
-            )
-            say(
-                f"  iteration {it}: RMS displacement {100 * before:.4f} -> "
-                f"{100 * after:.4f} % of width, NCC {ncc_before:.4f} -> {ncc:.4f}, "
-                f"{'accepted' if accepted else 'rejected'}"
-                + (f" (kept: {', '.join(weak)})" if weak else "")
-            )
-            if accepted:
-                state = dict(geometry=geo, rotations=rot, field=fld, scores=scores)
-                lam = lam / 10
-                break
-            lam = max(10 * lam, 1e-3)
-        if not accepted:
+        step = _joint_step(problem, carry, it, prior, progress.write)
+        carry, kept = step.carry, step.kept
+        history.extend(step.records)
+        progress.advance(history[-1] if step.records else None)
+        if step.end == "converged":
+            converged = True
+            break
+        if step.end == "stalled":
             # Nothing lowers the displacement any more: the measurement's
             # floor, if an earlier step got there
             converged = any(h["accepted"] for h in history)
             break
-        settled = _within_errors(update) or 1 - after / before < MIN_FALL
     else:
-        converged = settled
-    return state, history, converged, field_before, tuple(weak)
+        converged = carry.settled
+    return _LoopOutcome(carry.state, history, converged, start.field, kept)
 
 
 def _consistent(problem, geometry, field, free, offsets, prior) -> bool:
@@ -779,6 +1110,8 @@ def _within_errors(update: JointUpdate) -> bool:
     return bool(np.all(np.abs(update.delta) <= np.where(np.isfinite(se), se, np.inf)))
 
 
+
+
 # --------------------------------------------------------------------- #
 # The paper's solver
 # --------------------------------------------------------------------- #
@@ -790,84 +1123,151 @@ def _anchor(problem: _Problem, rotations: Rotation) -> Rotation:
     _, dq = problem.variants(rotations)
     # Far-off points (another variant not among the operators, or a
     # failed refinement) are not small deviations
-    small = dq.angle < np.deg2rad(5)
+    small = dq.angle < np.deg2rad(ANCHOR_MAX_ANGLE)
     if not small.any():
         return rotations
     mean = rotation_vectors(dq)[small].mean(axis=0)
     return rotations * ~rotations_from_vectors(mean)
 
 
-def _paper_loop(problem, geometry0, rotations0, jacobian, damping, max_iterations,
-                ncc_tolerance, say):
+def _paper_state(problem: _Problem, geometry, rotations, refined, scores) -> _PaperState:
+    """The paper solver's state at *geometry*: the field measured with
+    *rotations*, the NCC of the kikuchipy-*refined* orientations."""
+    fld = problem.measure(geometry, rotations)
+    return _PaperState(
+        geometry=geometry, rotations=rotations, field=fld, scores=scores,
+        refined=refined, ncc=float(np.mean(scores)), disp=_mean_displacement(fld),
+    )
+
+
+def _paper_loop(
+    problem: _Problem,
+    geometry0: MapGeometry,
+    jacobian: str,
+    damping: float,
+    max_iterations: int,
+    ncc_tolerance: float,
+    progress: _Progress,
+) -> _LoopOutcome:
     """The paper's loop (Fig. 4): average field, Eqs. 8-11, kikuchipy
     orientation refinement and NCC acceptance; see the module notes."""
     names = problem.parameters
+    rotations0 = problem.start_rotations
     rot_ref, scores = problem.refine_orientations(geometry0, rotations0)
     # The first field uses the starting orientations themselves, as the
     # paper does: orientations refined at a far-off start absorb much of
     # a large geometry error (measured: a 6 % start read as 1.4 %), and
     # the loop then converges to a wrong geometry
-    field = problem.measure(geometry0, rotations0)
-    state = dict(
-        geometry=geometry0, rotations=rotations0, refined=rot_ref, scores=scores,
-        ncc=float(np.mean(scores)), field=field, disp=_mean_displacement(field),
-    )
-    field_before = field
+    state = _paper_state(problem, geometry0, rotations0, rot_ref, scores)
+    field_before = state.field
     history, converged, gain = [], False, np.inf
     for it in range(max_iterations):
-        jac = problem.jacobian(state["geometry"], state["rotations"], state["field"], jacobian)
+        jac = problem.jacobian(state.geometry, state.rotations, state.field, jacobian)
         lam = damping
         step_taken = False
         for _ in range(MAX_TRIALS):
-            update = solve_update(jac, state["field"].residual, state["field"].weights, lam)
-            geo = state["geometry"].updated(dict(zip(names, update.delta)))
+            update = solve_update(jac, state.field.residual, state.field.weights, lam)
+            geo = state.geometry.updated(dict(zip(names, update.delta)))
             # Judge the step first by the displacement with the current
             # orientations (a simulation and a DIC pass); only a step that
             # lowers it pays for orientation refinement
-            disp = _mean_displacement(problem.measure(geo, state["rotations"]))
+            disp = _mean_displacement(problem.measure(geo, state.rotations))
             ncc = float("nan")
-            accepted = bool(disp < state["disp"])
+            accepted = bool(disp < state.disp)
             if accepted:
-                rot_ref, scores = problem.refine_orientations(geo, state["rotations"])
+                rot_ref, scores = problem.refine_orientations(geo, state.rotations)
                 ncc = float(np.mean(scores))
-                accepted = bool(ncc > state["ncc"] - ncc_tolerance)
+                accepted = bool(ncc > state.ncc - ncc_tolerance)
             history.append(
-                _step_record(
-                    it, names, geo, state["ncc"], ncc, state["disp"], disp, lam, accepted
-                )
+                _step_record(it, names, geo, state.ncc, ncc, state.disp, disp, lam, accepted)
             )
-            say(
-                f"  iteration {it}: NCC {state['ncc']:.4f} -> {ncc:.4f}, displacement "
-                f"{100 * state['disp']:.3f} -> {100 * disp:.3f} % of width, "
+            progress.write(
+                f"  iteration {it}: NCC {state.ncc:.4f} -> {ncc:.4f}, displacement "
+                f"{100 * state.disp:.3f} -> {100 * disp:.3f} % of width, "
                 f"{'accepted' if accepted else 'rejected'}"
             )
             if accepted:
-                rot = _anchor(problem, rot_ref)
-                fld = problem.measure(geo, rot)
-                gain = ncc - state["ncc"]
-                fall = 1 - disp / state["disp"]
-                state = dict(
-                    geometry=geo, rotations=rot, refined=rot_ref, scores=scores,
-                    ncc=ncc, field=fld, disp=_mean_displacement(fld),
-                )
+                gain = ncc - state.ncc
+                fall = 1 - disp / state.disp
+                state = _paper_state(problem, geo, _anchor(problem, rot_ref), rot_ref, scores)
                 step_taken = True
                 break
-            lam *= 10
+            lam *= DAMPING_FACTOR
+        progress.advance(history[-1])
         if not step_taken:
             # No step lowers the displacement any more: converged if the
             # NCC had stopped gaining too (the paper's criterion)
             converged = any(h["accepted"] for h in history) and gain < ncc_tolerance
             break
-        if gain < ncc_tolerance and fall < 0.1:
+        if gain < ncc_tolerance and fall < PAPER_MIN_FALL:
             converged = True
             break
     # The orientations refined at the final geometry, not anchored: the
     # best estimate of each orientation given the calibrated geometry
-    state["rotations"] = state["refined"]
-    return state, history, converged, field_before, ()
+    state = replace(state, rotations=state.refined)
+    return _LoopOutcome(state, history, converged, field_before, ())
 
 
 # --------------------------------------------------------------------- #
+# Progress
+# --------------------------------------------------------------------- #
+
+
+def _show_progressbar(show_progressbar: bool | None) -> bool:
+    """*show_progressbar*, or HyperSpy's preference if None (kikuchipy's
+    convention)."""
+    if show_progressbar is None:
+        return bool(hs.preferences.General.show_progressbar)
+    return bool(show_progressbar)
+
+
+class _Progress:
+    """What the user sees while a loop runs, if *show*: *header* and one
+    line per trial step printed to stdout, and a tqdm bar over the
+    iterations on stderr with the current RMS displacement and NCC.
+
+    The lines are printed as kikuchipy prints its refinement information
+    next to its progress bars (:meth:`~kikuchipy.signals.EBSD.refine_orientation`
+    prints; kikuchipy logs only debug messages); ``tqdm.write`` keeps them
+    above the bar.
+    """
+
+    def __init__(self, show: bool, total: int, header: str):
+        self.show = show
+        self._bar = None
+        if show:
+            print(header)
+            self._bar = tqdm(total=total, desc="Geometry refinement", unit="iteration")
+
+    def write(self, line: str) -> None:
+        if self.show:
+            tqdm.write(line, file=sys.stdout)
+
+    def advance(self, record: Mapping[str, Any] | None = None) -> None:
+        """One iteration done; *record* is the history record of its last
+        trial step."""
+        if self._bar is None:
+            return
+        if record is not None:
+            self._bar.set_postfix(
+                rms=f"{100 * record['displacement_after']:.4f} %",
+                ncc=f"{record['ncc_after']:.4f}",
+                refresh=False,
+            )
+        self._bar.update()
+
+    def __enter__(self) -> _Progress:
+        return self
+
+    def __exit__(self, exc_type, *exc) -> bool:
+        if self._bar is not None:
+            if exc_type is None:
+                # Converged before max_iterations: a full bar
+                self._bar.total = self._bar.n
+            self._bar.close()
+        return False
+
+
 # The function
 # --------------------------------------------------------------------- #
 
@@ -998,7 +1398,10 @@ def refine_geometry_dic(
     seed
         Seed of the DIC noise.
     show_progressbar
-        Print one line per step. Default: on.
+        Whether to show a progress bar over the iterations (tqdm, on
+        stderr) and print a header and one line per trial step (stdout).
+        If not given, the value of
+        :obj:`hyperspy.api.preferences.General.show_progressbar` is used.
 
     Returns
     -------
@@ -1034,126 +1437,68 @@ def refine_geometry_dic(
     >>> abs(res.parameters["pcx"] - sm.geometry.pc[0]) < 3e-4
     True
     """
-    if show_progressbar is None:
-        show_progressbar = True
-    names = check_parameters(parameters)
-    if solver not in SOLVERS:
-        raise ValueError(f"solver must be one of {SOLVERS}, not {solver!r}")
-    if jacobian not in _JACOBIANS:
-        raise ValueError(f"jacobian must be one of {_JACOBIANS}, not {jacobian!r}")
-    if orientation_prior is not None and not (
-        np.isfinite(orientation_prior) and orientation_prior > 0
-    ):
-        raise ValueError(
-            f"orientation_prior must be a positive RMS angle in degrees or None, "
-            f"not {orientation_prior}"
-        )
+    show = _show_progressbar(show_progressbar)
+    names = _check_options(parameters, solver, jacobian, orientation_prior)
     nav = navigation_shape(signal)
     phase_id = _check_inputs(signal, xmap, detector, master_pattern, phase, nav)
-    step_all = dict(DEFAULT_STEPS)
-    if steps:
-        check_parameters(list(steps))
-        step_all.update({k: float(v) for k, v in steps.items()})
-    if any(step_all[n] <= 0 for n in names):
-        raise ValueError("Finite-difference steps must be positive")
-    ref_kw = dict(refine_kwargs or {})
-    ops = ref_kw.pop("pseudo_symmetry_ops", None)
-    if pseudo_symmetry_ops is not None:
-        ops = pseudo_symmetry_ops
-
-    pts = _points(points, usable_points(xmap, phase_id).reshape(nav), nav)
-    n_free = len(_solved_parameters(names)[0])
-    if len(pts) < max(n_free, 2):
-        raise ValueError(
-            f"{len(pts)} usable calibration point(s) for {n_free} independent "
-            "parameter(s): at least as many points as parameters (and 2) are needed"
-        )
-
-    exp = _experimental(signal, pts, nav)
-    geometry0 = MapGeometry.from_detector(detector, _step_sizes(signal), nav)
-    flat = flat_index(pts, nav)
-    lookup = np.full(nav[0] * nav[1], -1)
-    lookup[xmap.id] = np.arange(xmap.size)
-    start_rot = Rotation(xmap.rotations.data[lookup[flat]])
-
     dic_kw = dict(rois=tuple(rois), binning=binning, dic=dic, seed=seed)
     dic_kw.update(dic_kwargs or {})
-    problem = _Problem(
-        experimental=exp,
-        points=pts,
-        start_rotations=start_rot,
-        master_pattern=master_pattern,
-        energy=float(energy),
-        # The master pattern's phase, checked above to match xmap's:
-        # kikuchipy refuses phases whose atom lists differ in order (as
-        # after a round trip through an h5ebsd file)
-        phase=master_pattern.phase.deepcopy(),
-        parameters=names,
-        steps={n: step_all[n] for n in names},
-        dic_kwargs=dic_kw,
-        refine_kwargs=ref_kw,
-        pseudo_symmetry_ops=None if ops is None else Rotation(ops).flatten(),
+    problem = _prepare_problem(
+        signal, xmap, master_pattern, energy, names, points, phase_id, nav, steps, dic_kw,
+        refine_kwargs, pseudo_symmetry_ops,
     )
-    say = print if show_progressbar else (lambda *a, **k: None)
-    say(
-        f"Refining the geometry ({solver} solver) with {len(pts)} calibration points: "
-        f"{', '.join(names)}"
+    geometry0 = MapGeometry.from_detector(detector, _step_sizes(signal), nav)
+    header = (
+        f"Refining the geometry ({solver} solver) with {len(problem.points)} calibration "
+        f"points: {', '.join(names)}"
     )
+    with _Progress(show, max_iterations, header) as progress:
+        if solver == "joint":
+            outcome = _joint_loop(
+                problem, geometry0, orientation_prior, 0.0 if damping is None else damping,
+                max_iterations, progress,
+            )
+        else:
+            outcome = _paper_loop(
+                problem, geometry0, jacobian, PAPER_DAMPING if damping is None else damping,
+                max_iterations, ncc_tolerance, progress,
+            )
+    rotations, scores = _final_orientations(problem, outcome.state, solver, refine_kwargs)
+    return _build_result(
+        problem, outcome, rotations, scores, detector, signal, nav, geometry0,
+        orientation_prior, solver,
+    )
+
+
+# --------------------------------------------------------------------- #
+# The result builder
+# --------------------------------------------------------------------- #
+
+
+def _final_orientations(
+    problem: _Problem, state: _State, solver: str, refine_kwargs: Mapping[str, Any] | None
+) -> tuple[Rotation, np.ndarray]:
+    """The final orientations and their NCC: the loop's, refined once more
+    by kikuchipy at the refined geometry at full resolution if the joint
+    solver was given *refine_kwargs* or the paper's loop binned."""
     if solver == "joint":
-        state, history, converged, field_before, fixed = _joint_loop(
-            problem, geometry0, start_rot, orientation_prior,
-            0.0 if damping is None else damping, max_iterations, say,
-        )
-        geometry = state["geometry"]
-        final_rot, final_scores = state["rotations"], state["scores"]
-        if refine_kwargs is not None:
-            final_rot, final_scores = problem.refine_orientations(geometry, final_rot, binning=1)
+        again = refine_kwargs is not None
     else:
-        state, history, converged, field_before, fixed = _paper_loop(
-            problem, geometry0, start_rot, jacobian, 1e-3 if damping is None else damping,
-            max_iterations, ncc_tolerance, say,
-        )
-        geometry = state["geometry"]
-        final_rot, final_scores = state["rotations"], state["scores"]
-        if problem.loop_binning > 1:
-            final_rot, final_scores = problem.refine_orientations(geometry, final_rot, binning=1)
-    return _result(
-        problem, detector, signal, nav, geometry0, geometry, final_rot, final_scores, state,
-        history, converged, field_before, fixed, orientation_prior, solver,
-    )
+        again = problem.loop_binning > 1
+    if not again:
+        return state.rotations, state.scores
+    return problem.refine_orientations(state.geometry, state.rotations, binning=1)
 
 
-def _points(points, usable: np.ndarray, nav: tuple[int, int]) -> np.ndarray:
-    if np.ndim(points) == 0:
-        return calibration_points(nav, int(points), usable)
-    pts = np.asarray(points)
-    if pts.ndim != 2 or pts.shape[1] != 2 or not np.issubdtype(pts.dtype, np.integer):
-        raise ValueError("points must be an int or an (N, 2) integer array of (row, col)")
-    outside = (pts < 0).any(axis=1) | (pts[:, 0] >= nav[0]) | (pts[:, 1] >= nav[1])
-    if outside.any():
-        raise ValueError(
-            f"{outside.sum()} point(s) lie outside the map of shape {nav}, e.g. "
-            f"{pts[outside][0].tolist()}"
-        )
-    bad = ~usable[pts[:, 0], pts[:, 1]]
-    if bad.any():
-        raise ValueError(
-            f"{bad.sum()} point(s) are not indexed with the chosen phase, e.g. "
-            f"{pts[bad][0].tolist()}"
-        )
-    return pts
-
-
-def _standard_errors(problem, state, prior) -> dict[str, float]:
+def _standard_errors(problem: _Problem, state: _State, prior) -> dict[str, float]:
     """Standard errors of every refined parameter at the final state, and
     of the determined tilt difference, from one joint solve."""
     names = problem.parameters
     solved, split = _solved_parameters(names)
-    prior_rad = None if prior is None else np.deg2rad(prior) / np.sqrt(3)
-    _, dq = problem.variants(state["rotations"])
-    linear = _linearise(problem, state["geometry"], state["field"], solved)
+    linear = _linearise(problem, state.geometry, state.field, solved)
     update, _ = _joint_solve(
-        state["field"], linear, range(len(solved)), rotation_vectors(dq), prior_rad, 0.0
+        state.field, linear, range(len(solved)), problem.rotation_offsets(state.rotations),
+        _prior_per_axis(prior), 0.0,
     )
     se = dict(zip(solved, map(float, update.standard_errors)))
     if "tilt" in names or "sample_tilt" in names:
@@ -1165,29 +1510,42 @@ def _standard_errors(problem, state, prior) -> dict[str, float]:
     return {k: se[k] for k in (*names, TILT_DIFFERENCE) if k in se}
 
 
-def _result(problem, detector, signal, nav, geometry0, geometry, final_rot, final_scores,
-            state, history, converged, field_before, fixed, prior, solver):
+def _build_result(
+    problem: _Problem,
+    outcome: _LoopOutcome,
+    rotations: Rotation,
+    scores: np.ndarray,
+    detector: EBSDDetector,
+    signal: EBSD,
+    nav: tuple[int, int],
+    geometry0: MapGeometry,
+    prior: float | None,
+    solver: str,
+) -> GeometryRefinementResult:
+    """The :class:`GeometryRefinementResult` of a loop's *outcome*, with
+    the final orientations *rotations* and their NCC *scores*."""
     names, pts = problem.parameters, problem.points
+    state = outcome.state
+    geometry, field_after = state.geometry, state.field
     xmap_out = CrystalMap(
-        rotations=final_rot,
+        rotations=rotations,
         x=np.arange(len(pts), dtype=float),
         phase_list=PhaseList(problem.phase),
         prop={
-            "scores": np.asarray(final_scores),
+            "scores": np.asarray(scores),
             "row": pts[:, 0],
             "col": pts[:, 1],
-            "pseudo_symmetry_index": problem.variants(final_rot)[0],
+            "pseudo_symmetry_index": problem.variants(rotations)[0],
             # A pattern far above the others failed (e.g. a wrong start)
             "dic_rms": np.sqrt(
-                (state["field"].counts * (state["field"].u ** 2).sum(axis=-1)).sum(axis=1)
-                / np.maximum(state["field"].counts.sum(axis=1), 1)
+                (field_after.counts * (field_after.u**2).sum(axis=-1)).sum(axis=1)
+                / np.maximum(field_after.counts.sum(axis=1), 1)
             ),
         },
     )
     det = geometry.detector()
     if len(detector.navigation_shape) == 2 or nav[0] > 1:
         det.pc = det.pc.reshape(signal.axes_manager.navigation_shape[::-1] + (3,))
-    field_after = state["field"]
     se = _standard_errors(problem, state, prior)
     # Diagnostics of the average field, the paper's view of the map
     jac = analytic_jacobian(
@@ -1195,7 +1553,8 @@ def _result(problem, detector, signal, nav, geometry0, geometry, final_rot, fina
     )
     update = solve_update(jac, field_after.residual, field_after.weights, 0.0)
     degenerate = [
-        {n: float(c) for n, c in zip(names, v) if abs(c) > 1e-6} for v in update.null_space.T
+        {n: float(c) for n, c in zip(names, v) if abs(c) > NULL_SPACE_TOLERANCE}
+        for v in update.null_space.T
     ]
     return GeometryRefinementResult(
         detector=det,
@@ -1212,34 +1571,13 @@ def _result(problem, detector, signal, nav, geometry0, geometry, final_rot, fina
             > DETERMINACY_LIMITS[n]
         ),
         solver=solver,
-        history=history,
+        history=outcome.history,
         jacobian=jac,
         coupling=coupling_matrix(jac, field_after.weights),
         singular_values=update.singular_values,
         degenerate=degenerate,
-        field_before=field_before,
+        field_before=outcome.field_before,
         field_after=field_after,
-        converged=converged,
+        converged=outcome.converged,
         steps=problem.steps,
     )
-
-
-def _experimental(signal: EBSD, pts: np.ndarray, nav: tuple[int, int]) -> np.ndarray:
-    data = signal.data
-    if len(signal.axes_manager.navigation_shape) == 1:
-        sel = data[pts[:, 1]]
-    else:
-        # Sorted, unique row-major indices read a lazy signal chunk-wise
-        data = data.reshape((nav[0] * nav[1],) + data.shape[-2:])
-        sel = data[flat_index(pts, nav)]
-    if hasattr(sel, "compute"):
-        sel = sel.compute()
-    sel = np.asarray(sel, dtype=np.float32)
-    bad = ~np.isfinite(sel).all(axis=(1, 2))
-    if bad.any():
-        raise ValueError(
-            f"{bad.sum()} calibration pattern(s) contain NaN or infinite values, e.g. "
-            f"at (row, col) {pts[bad][0].tolist()}: remove them from xmap or pass "
-            "explicit points"
-        )
-    return sel

@@ -792,3 +792,170 @@ def test_ctrl_c_in_a_real_process(tmp_path, data):
     assert proc.returncode == 130, err
     assert err.strip().splitlines()[-1] == "kikuchipy-geomdic: interrupted"
     assert not out.exists() or list(out.iterdir()) == []
+
+
+# --------------------------------------------------------------------- #
+# Warnings about step sizes and placeholder geometry
+# --------------------------------------------------------------------- #
+
+
+WARNING = "kikuchipy-geomdic: warning: "
+#: All points of the line scan (FAST asks for more)
+LINE = ["--points", str(NAV[1])]
+
+
+def write_emsoft_ebsd(path, patterns, rotations, detector, phase):
+    """Write a 1D stack of patterns in the layout of EMsoft's EMEBSD
+    output, as far as kikuchipy's reader needs it: its navigation axis is
+    in pixels, not micrometres."""
+    n, sy, sx = patterns.shape
+    lat = np.asarray(phase.structure.lattice.abcABG(), dtype=float)
+    pc = detector.pc_emsoft().reshape(-1, 3)[0]
+    with h5py.File(path, "w") as f:
+        f["EMheader/EBSD/ProgramName"] = np.array([b"EMEBSD.f90"], dtype="S10")
+        cd = f.create_group("CrystalData")
+        cd["LatticeParameters"] = np.concatenate([lat[:3] / 10, lat[3:]])  # nm
+        cd["SpaceGroupNumber"] = phase.space_group.number
+        cd["Natomtypes"] = 1
+        cd["Atomtypes"] = 14
+        cd["AtomData"] = np.array([[0.0], [0.0], [0.0], [1.0], [0.005]], dtype=np.float32)
+        em = f.create_group("EMData/EBSD")
+        em["EBSDPatterns"] = np.asarray(patterns, dtype=np.float32)
+        em["EulerAngles"] = rotations.to_euler().astype(np.float32)
+        em["xtalname"] = np.array([b"Si/Si.xtal"])
+        nml = f.create_group("NMLparameters/EBSDNameList")
+        nml["numsx"], nml["numsy"] = sx, sy
+        nml["energymax"] = 20.0
+        nml["delta"] = float(detector.px_size)
+        nml["binning"] = int(detector.binning)
+        nml["thetac"] = float(detector.tilt)
+        nml["xpc"], nml["ypc"], nml["L"] = (float(v) for v in pc)
+
+
+def _stop_at_refinement(monkeypatch):
+    """Replace the refinement by a stop (Ctrl-C) that records what the CLI
+    passed: the warnings come before it."""
+    seen = {}
+
+    def stop(signal, xmap, detector, *args, **kwargs):
+        seen.update(signal=signal, xmap=xmap, detector=detector, kwargs=kwargs)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("kikuchipy_geomdic.refinement.refine_geometry_dic", stop)
+    return seen
+
+
+def _warnings(err):
+    return [li[len(WARNING):] for li in err.splitlines() if li.startswith(WARNING)]
+
+
+def _refine_files(patterns, orientations, out, *extra):
+    return [
+        "refine", patterns, "--orientations", orientations, "--master-pattern", "Si",
+        "--energy", "20", *FAST, "--out", out, *extra,
+    ]
+
+
+@pytest.fixture(scope="module")
+def line_files(data, tmp_path_factory):
+    """The first row of the map as an EMsoft pattern file (navigation in
+    pixels) and its orientations as orix h5 files in um and in px."""
+    d, sm = data
+    b = tmp_path_factory.mktemp("line")
+    n = NAV[1]
+    write_emsoft_ebsd(
+        b / "line_emsoft.h5", np.asarray(sm.signal.data[0]), sm.start_xmap.rotations[:n],
+        sm.start_detector, sm.master_pattern.phase,
+    )
+    dx = sm.geometry.step_sizes[1]
+    for unit, step in (("um", dx), ("px", 1.0)):
+        xm = CrystalMap(
+            rotations=sm.start_xmap.rotations[:n], x=np.arange(n) * step,
+            phase_list=sm.start_xmap.phases, scan_unit=unit,
+        )
+        orix_io.save(str(b / f"line_{unit}.h5"), xm)
+    return b, dx
+
+
+def test_placeholder_geometry_warnings(tmp_path, data, monkeypatch, capsys):
+    from kikuchipy.detectors import EBSDDetector
+
+    d, sm = data
+    s = sm.signal.deepcopy()
+    s.detector = EBSDDetector(
+        shape=(60, 60), pc=(0.5, 0.5, 0.5), px_size=1.0, tilt=2.0, sample_tilt=70.0
+    )
+    s.save(tmp_path / "placeholder.h5")
+    seen = _stop_at_refinement(monkeypatch)
+    argv = _refine_files(tmp_path / "placeholder.h5", d / "map.ang", tmp_path / "o")
+    code, _, err = run(argv, capsys)
+    assert code == 130, err
+    assert _warnings(err) == [
+        "the pattern file has kikuchipy's default PC (0.5, 0.5, 0.5), probably no "
+        "calibration: pass a starting --pc X Y Z",
+        "the detector pixel size is 1 um, kikuchipy's placeholder: the PC field over the "
+        "map depends on it, pass --px-size (unbinned, um) and --binning",
+    ]
+    assert np.allclose(seen["detector"].pc, 0.5)
+    # Given on the command line, the placeholders are replaced and not warned about
+    code, _, err = run(argv + ["--pc", "0.52", "0.26", "0.64", "--px-size", "70"], capsys)
+    assert code == 130, err
+    assert _warnings(err) == []
+    assert np.allclose(seen["detector"].pc, [0.52, 0.26, 0.64])
+    assert seen["detector"].px_size == 70
+
+
+def test_step_sizes_differ_warning(tmp_path, data, monkeypatch, capsys):
+    d, sm = data
+    dy, dx = sm.geometry.step_sizes
+    xm = CrystalMap(
+        rotations=sm.start_xmap.rotations, x=sm.start_xmap.x / 2.5, y=sm.start_xmap.y / 2.5,
+        phase_list=sm.start_xmap.phases, scan_unit="um",
+    )
+    orix_io.save(str(tmp_path / "other_steps.h5"), xm)
+    seen = _stop_at_refinement(monkeypatch)
+    code, _, err = run(
+        _refine_files(d / "map.h5", tmp_path / "other_steps.h5", tmp_path / "o"), capsys
+    )
+    assert code == 130, err
+    assert _warnings(err) == [
+        f"step sizes differ: patterns {{'x': {dx}, 'y': {dy}}} um, orientation map "
+        f"(x {dx / 2.5}, y {dy / 2.5}) um; using the patterns'"
+    ]
+    axes = seen["signal"].axes_manager.navigation_axes
+    assert [(ax.name, ax.scale, ax.units) for ax in axes] == [("x", dx, "um"), ("y", dy, "um")]
+
+
+def test_no_step_size_in_micrometres_warning(tmp_path, line_files, monkeypatch, capsys):
+    b, dx = line_files
+    seen = _stop_at_refinement(monkeypatch)
+    code, _, err = run(
+        _refine_files(b / "line_emsoft.h5", b / "line_um.h5", tmp_path / "o", *LINE),
+        capsys,
+    )
+    assert code == 130, err
+    (warning,) = _warnings(err)
+    # A line scan's orientation map has no y step (orix gives 0)
+    assert warning.startswith(
+        "the pattern file gives no step size in micrometres; using the orientation map's "
+        f"(x {dx}, y "
+    ) and warning.endswith(" um)"), warning
+    # The line scan's patterns now have the orientation map's step
+    (ax,) = seen["signal"].axes_manager.navigation_axes
+    assert (ax.scale, ax.units) == (dx, "um")
+
+
+def test_step_sizes_not_micrometres_warning(tmp_path, line_files, monkeypatch, capsys):
+    b, _ = line_files
+    seen = _stop_at_refinement(monkeypatch)
+    code, _, err = run(
+        _refine_files(b / "line_emsoft.h5", b / "line_px.h5", tmp_path / "o", *LINE),
+        capsys,
+    )
+    assert code == 130, err
+    assert _warnings(err) == [
+        "step sizes are in ['px'], not micrometres: the PC field over the map assumes "
+        "micrometres"
+    ]
+    (ax,) = seen["signal"].axes_manager.navigation_axes
+    assert (ax.scale, ax.units) == (1.0, "px")

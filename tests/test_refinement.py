@@ -325,10 +325,17 @@ class TestCalibrationPoints:
         assert usable[p[:, 0], p[:, 1]].all()
 
 
+@pytest.fixture(scope="module")
+def bad_input_map(si_mp):
+    # Module scope: pytest deprecates class-scoped fixtures that are
+    # instance methods (PytestRemovedIn10Warning)
+    return synthetic.synthetic_map(si_mp, (3, 4), shape=(40, 40), seed=6)
+
+
 class TestBadInput:
-    @pytest.fixture(scope="class")
-    def sm(self, si_mp):
-        return synthetic.synthetic_map(si_mp, (3, 4), shape=(40, 40), seed=6)
+    @pytest.fixture
+    def sm(self, bad_input_map):
+        return bad_input_map
 
     def _call(self, sm, **kw):
         args = dict(
@@ -407,3 +414,62 @@ def test_batio3_wrong_variants_corrected(bto_mp):
     assert max(abs(err[k]) for k in ("pcx", "pcy", "pcz")) <= PC_TOL, err
     # ops[3] undoes ops[2] (90 and -90 deg about [010])
     assert np.array_equal(res.xmap.prop["pseudo_symmetry_index"], np.where(wrong, 3, 0))
+
+
+# --------------------------------------------------------------------- #
+# Progress bar
+# --------------------------------------------------------------------- #
+
+
+@pytest.fixture(scope="module")
+def tiny(si_mp):
+    return synthetic.synthetic_map(si_mp, (3, 3), shape=(40, 40), seed=4)
+
+
+@pytest.mark.parametrize(
+    "preference, show, shown",
+    [(True, None, True), (False, None, False), (True, False, False), (False, True, True)],
+)
+def test_progressbar(tiny, monkeypatch, capsys, preference, show, shown):
+    # None follows HyperSpy's preference, True and False force it
+    import hyperspy.api as hs
+
+    monkeypatch.setattr(hs.preferences.General, "show_progressbar", preference)
+    res = kg.refine_geometry_dic(
+        tiny.signal, tiny.start_xmap, tiny.start_detector, tiny.master_pattern, tiny.energy,
+        parameters=["pcx", "pcy", "pcz"], points=9, max_iterations=2,
+        show_progressbar=show,
+    )
+    out, err = capsys.readouterr()
+    if not shown:
+        assert out == "" and err == ""
+        return
+    lines = out.splitlines()
+    assert lines[0] == (
+        "Refining the geometry (joint solver) with 9 calibration points: pcx, pcy, pcz"
+    )
+    # One line per trial step (stdout), as before the bar
+    assert len(lines) == 1 + len(res.history)
+    h = res.history[0]
+    assert lines[1].startswith(
+        f"  iteration 0: RMS displacement {100 * h['displacement_before']:.4f} -> "
+        f"{100 * h['displacement_after']:.4f} % of width"
+    )
+    # The tqdm bar over the iterations (stderr), ending full
+    assert "Geometry refinement" in err and "iteration" in err
+    last = err.replace("\r", "\n").strip().splitlines()[-1]
+    assert "100%" in last, last
+
+
+def test_progressbar_paper_solver(tiny, capsys):
+    res = kg.refine_geometry_dic(
+        tiny.signal, tiny.start_xmap, tiny.start_detector, tiny.master_pattern, tiny.energy,
+        parameters=["pcx", "pcy", "pcz"], points=9, max_iterations=1, solver="paper",
+        show_progressbar=True,
+    )
+    out, err = capsys.readouterr()
+    assert out.splitlines()[0].startswith("Refining the geometry (paper solver)")
+    assert sum(li.startswith("  iteration 0: NCC") for li in out.splitlines()) == len(
+        res.history
+    )
+    assert "Geometry refinement" in err
