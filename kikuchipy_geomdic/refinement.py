@@ -62,8 +62,9 @@ As kikuchipy's :meth:`~kikuchipy.signals.EBSD.refine_orientation`:
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any
 
 import hyperspy.api as hs
 import numpy as np
@@ -230,8 +231,13 @@ class GeometryRefinementResult:
         rows = [(n, start[n], self.parameters[n]) for n in self.parameter_names]
         if TILT_DIFFERENCE in self.standard_errors:
             ref = {**start, **self.parameters}
-            rows.append((TILT_DIFFERENCE, start["tilt"] - start["sample_tilt"],
-                         ref["tilt"] - ref["sample_tilt"]))
+            rows.append(
+                (
+                    TILT_DIFFERENCE,
+                    start["tilt"] - start["sample_tilt"],
+                    ref["tilt"] - ref["sample_tilt"],
+                )
+            )
             if true is not None:
                 true[TILT_DIFFERENCE] = true["tilt"] - true["sample_tilt"]
         notes = []
@@ -242,7 +248,12 @@ class GeometryRefinementResult:
             line = f"{name:<17}" + f.format(a) + " " + f.format(b)
             line += f"{se:>10.1e}" if np.isfinite(se) else f"{'-':>10}"
             if true is not None:
-                line += " " + f.format(true[name]) + " " + ("{:>+10.6f}" if pc else "{:>+10.4f}").format(b - true[name])
+                line += (
+                    " "
+                    + f.format(true[name])
+                    + " "
+                    + ("{:>+10.6f}" if pc else "{:>+10.4f}").format(b - true[name])
+                )
             line += "  " + ("PC" if pc else "deg")
             if name in self.undetermined or (
                 name == TILT_DIFFERENCE and "tilt" in self.undetermined
@@ -368,7 +379,9 @@ def _check_inputs(signal, xmap, detector, master_pattern, phase, nav):
     if not isinstance(xmap, CrystalMap):
         raise TypeError(f"xmap must be an orix CrystalMap, not {type(xmap).__name__}")
     if not isinstance(detector, EBSDDetector):
-        raise TypeError(f"detector must be a kikuchipy EBSDDetector, not {type(detector).__name__}")
+        raise TypeError(
+            f"detector must be a kikuchipy EBSDDetector, not {type(detector).__name__}"
+        )
     check_master_pattern(master_pattern)
     xshape = xmap.shape if len(xmap.shape) == 2 else (1,) + tuple(xmap.shape)
     if tuple(xshape) != nav or xmap.size != nav[0] * nav[1]:
@@ -655,8 +668,14 @@ class _Problem:
         if self.pseudo_symmetry_ops is not None:
             kw["pseudo_symmetry_ops"] = self.pseudo_symmetry_ops
         ref = refine_orientations(
-            self.experimental, rotations, geometry.detector(self.points), self.master_pattern,
-            self.energy, self.phase, self.loop_binning if binning is None else binning, **kw,
+            self.experimental,
+            rotations,
+            geometry.detector(self.points),
+            self.master_pattern,
+            self.energy,
+            self.phase,
+            self.loop_binning if binning is None else binning,
+            **kw,
         )
         return ref.rotations, ref.scores
 
@@ -711,12 +730,14 @@ class _Problem:
     ) -> np.ndarray:
         if kind == "finite-difference":
             return finite_difference_jacobian(
-                lambda g: self.measure(g, rotations).residual, geometry, self.parameters, self.steps
+                lambda g: self.measure(g, rotations).residual,
+                geometry,
+                self.parameters,
+                self.steps,
             )
         return analytic_jacobian(
             geometry, self.points, field0.positions, field0.counts, self.parameters, self.steps
         )
-
 
 
 # --------------------------------------------------------------------- #
@@ -847,9 +868,7 @@ def _pattern_variances(
     c = np.repeat(field.counts, 2, axis=1)
     m = (c > 0).sum(axis=1)
     rss = (c * r**2).sum(axis=1)
-    var = np.where(
-        m > ROTATION_UNKNOWNS, rss / np.maximum(m - ROTATION_UNKNOWNS, 1), np.nan
-    )
+    var = np.where(m > ROTATION_UNKNOWNS, rss / np.maximum(m - ROTATION_UNKNOWNS, 1), np.nan)
     floor = np.nanmedian(var) if np.isfinite(var).any() else FALLBACK_VARIANCE
     floor = max(floor, MIN_VARIANCE)
     return np.where(np.isfinite(var), np.maximum(var, floor), floor)
@@ -883,8 +902,9 @@ def _joint_solve(
     return solve_joint(jg, jr, b, w, prior=prior, offsets=offsets, damping=damping), var
 
 
-def _step_record(it, names, geometry, ncc_before, ncc_after, before, after, damping,
-                 accepted, **extra) -> dict[str, Any]:
+def _step_record(
+    it, names, geometry, ncc_before, ncc_after, before, after, damping, accepted, **extra
+) -> dict[str, Any]:
     """One entry of :attr:`GeometryRefinementResult.history`."""
     return dict(
         iteration=it,
@@ -897,7 +917,6 @@ def _step_record(it, names, geometry, ncc_before, ncc_after, before, after, damp
         accepted=accepted,
         **extra,
     )
-
 
 
 def _prior_per_axis(prior: float | None) -> float | None:
@@ -928,6 +947,13 @@ class _JointCarry:
     kept
         Parameters kept at their value in the last iteration (None
         before the first).
+    moved
+        Parameters that have left their start value. The significance
+        rule guards only the start: once a poorly determined parameter
+        has taken a significant step, it is refined like any other
+        (measured: a tilt that overshot from 0.9 to -0.6 deg off at a
+        standard error of 0.24 deg could not come back by a step under
+        three standard errors).
     """
 
     state: _State
@@ -935,6 +961,7 @@ class _JointCarry:
     hold: bool = True
     settled: bool = False
     kept: tuple[str, ...] | None = None
+    moved: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -967,7 +994,7 @@ def _choose_free(
     not be kept because its sigma there is large."""
     se = dict(zip(solved, update.standard_errors))
     step = dict(zip(solved, update.delta))
-    poor = [n for n in solved if se[n] > DETERMINACY_LIMITS[n]]
+    poor = [n for n in solved if se[n] > DETERMINACY_LIMITS[n] and n not in carry.moved]
     hold = carry.hold and not carry.settled
     weak = [n for n in poor if n not in _PC] if hold else []
     if not hold or len(weak) == len(solved):
@@ -1026,14 +1053,26 @@ def _joint_step(
         accepted = bool(after < before) or (
             after < (1 + MIN_FALL) * before
             and _consistent(
-                problem, trial.geometry, trial.field, free,
-                problem.rotation_offsets(trial.rotations), prior_rad,
+                problem,
+                trial.geometry,
+                trial.field,
+                free,
+                problem.rotation_offsets(trial.rotations),
+                prior_rad,
             )
         )
         ncc = float(np.mean(trial.scores)) if accepted else float("nan")
         records.append(
             _step_record(
-                iteration, names, trial.geometry, ncc_before, ncc, before, after, lam, accepted,
+                iteration,
+                names,
+                trial.geometry,
+                ncc_before,
+                ncc,
+                before,
+                after,
+                lam,
+                accepted,
                 standard_errors=dict(zip(free, map(float, update.standard_errors))),
                 kept=weak,
             )
@@ -1045,14 +1084,23 @@ def _joint_step(
             + (f" (kept: {', '.join(weak)})" if weak else "")
         )
         if accepted:
-            settled = _within_errors(update) or 1 - after / before < MIN_FALL
+            # A step that takes a poorly determined parameter off its
+            # start is followed by at least one more, which may correct it
+            released = any(
+                n not in carry.moved and se > DETERMINACY_LIMITS[n]
+                for n, se in zip(free, update.standard_errors)
+            )
+            settled = not released and (_within_errors(update) or 1 - after / before < MIN_FALL)
+            moved = tuple(n for n in solved if n in carry.moved or n in free)
             return _JointStep(
-                _JointCarry(trial, lam / DAMPING_FACTOR, hold, settled, weak),
+                _JointCarry(trial, lam / DAMPING_FACTOR, hold, settled, weak, moved),
                 tuple(records),
                 weak,
             )
         lam = max(DAMPING_FACTOR * lam, MIN_RETRY_DAMPING)
-    return _JointStep(_JointCarry(state, lam, hold, False, weak), tuple(records), weak, "stalled")
+    return _JointStep(
+        _JointCarry(state, lam, hold, False, weak, carry.moved), tuple(records), weak, "stalled"
+    )
 
 
 def _joint_loop(
@@ -1110,8 +1158,6 @@ def _within_errors(update: JointUpdate) -> bool:
     return bool(np.all(np.abs(update.delta) <= np.where(np.isfinite(se), se, np.inf)))
 
 
-
-
 # --------------------------------------------------------------------- #
 # The paper's solver
 # --------------------------------------------------------------------- #
@@ -1135,8 +1181,13 @@ def _paper_state(problem: _Problem, geometry, rotations, refined, scores) -> _Pa
     *rotations*, the NCC of the kikuchipy-*refined* orientations."""
     fld = problem.measure(geometry, rotations)
     return _PaperState(
-        geometry=geometry, rotations=rotations, field=fld, scores=scores,
-        refined=refined, ncc=float(np.mean(scores)), disp=_mean_displacement(fld),
+        geometry=geometry,
+        rotations=rotations,
+        field=fld,
+        scores=scores,
+        refined=refined,
+        ncc=float(np.mean(scores)),
+        disp=_mean_displacement(fld),
     )
 
 
@@ -1444,8 +1495,18 @@ def refine_geometry_dic(
     dic_kw = dict(rois=tuple(rois), binning=binning, dic=dic, seed=seed)
     dic_kw.update(dic_kwargs or {})
     problem = _prepare_problem(
-        signal, xmap, master_pattern, energy, names, points, phase_id, nav, steps, dic_kw,
-        refine_kwargs, pseudo_symmetry_ops,
+        signal,
+        xmap,
+        master_pattern,
+        energy,
+        names,
+        points,
+        phase_id,
+        nav,
+        steps,
+        dic_kw,
+        refine_kwargs,
+        pseudo_symmetry_ops,
     )
     geometry0 = MapGeometry.from_detector(detector, _step_sizes(signal), nav)
     header = (
@@ -1455,18 +1516,35 @@ def refine_geometry_dic(
     with _Progress(show, max_iterations, header) as progress:
         if solver == "joint":
             outcome = _joint_loop(
-                problem, geometry0, orientation_prior, 0.0 if damping is None else damping,
-                max_iterations, progress,
+                problem,
+                geometry0,
+                orientation_prior,
+                0.0 if damping is None else damping,
+                max_iterations,
+                progress,
             )
         else:
             outcome = _paper_loop(
-                problem, geometry0, jacobian, PAPER_DAMPING if damping is None else damping,
-                max_iterations, ncc_tolerance, progress,
+                problem,
+                geometry0,
+                jacobian,
+                PAPER_DAMPING if damping is None else damping,
+                max_iterations,
+                ncc_tolerance,
+                progress,
             )
     rotations, scores = _final_orientations(problem, outcome.state, solver, refine_kwargs)
     return _build_result(
-        problem, outcome, rotations, scores, detector, signal, nav, geometry0,
-        orientation_prior, solver,
+        problem,
+        outcome,
+        rotations,
+        scores,
+        detector,
+        signal,
+        nav,
+        geometry0,
+        orientation_prior,
+        solver,
     )
 
 
@@ -1497,8 +1575,12 @@ def _standard_errors(problem: _Problem, state: _State, prior) -> dict[str, float
     solved, split = _solved_parameters(names)
     linear = _linearise(problem, state.geometry, state.field, solved)
     update, _ = _joint_solve(
-        state.field, linear, range(len(solved)), problem.rotation_offsets(state.rotations),
-        _prior_per_axis(prior), 0.0,
+        state.field,
+        linear,
+        range(len(solved)),
+        problem.rotation_offsets(state.rotations),
+        _prior_per_axis(prior),
+        0.0,
     )
     se = dict(zip(solved, map(float, update.standard_errors)))
     if "tilt" in names or "sample_tilt" in names:
@@ -1566,7 +1648,8 @@ def _build_result(
         parameters=dict(zip(names, map(float, geometry.values(names)))),
         standard_errors=se,
         undetermined=tuple(
-            n for n in names
+            n
+            for n in names
             if se.get(TILT_DIFFERENCE if n in ("tilt", "sample_tilt") else n, 0)
             > DETERMINACY_LIMITS[n]
         ),
