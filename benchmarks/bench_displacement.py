@@ -49,7 +49,11 @@ SIZES = (60, 120, 240)
 def detector(shape, pc, angles):
     tilt, azimuthal, sample_tilt, twist = angles
     return EBSDDetector(
-        shape=shape, pc=pc, tilt=tilt, azimuthal=azimuthal, sample_tilt=sample_tilt,
+        shape=shape,
+        pc=pc,
+        tilt=tilt,
+        azimuthal=azimuthal,
+        sample_tilt=sample_tilt,
         twist=twist,
     )
 
@@ -95,9 +99,11 @@ def main():
     q = np.random.default_rng(0).normal(size=(args.n, 4))
     rot = Rotation(q / np.linalg.norm(q, axis=1, keepdims=True))
     print(f"{args.n} patterns per size, {os.cpu_count()} cores")
-    head = (f"{'size':>9} {'backend':>8} {'pat/s sync':>10} "
-            f"{'pat/s threads':>13} {'RMS clean':>9} {'RMS noisy':>9} "
-            f"{'vec/ROI':>7} {'|u| RMS':>7}")
+    head = (
+        f"{'size':>9} {'backend':>8} {'pat/s sync':>10} "
+        f"{'pat/s threads':>13} {'RMS clean':>9} {'RMS noisy':>9} "
+        f"{'vec/ROI':>7} {'|u| RMS':>7}"
+    )
     print(head)
     print("-" * len(head))
     for size in SIZES:
@@ -115,9 +121,11 @@ def main():
                 a, b_noisy, seed=0, keep_vectors=True, noise=0.05, blur=1.0, **kw
             )
             mag = np.sqrt(np.mean(np.sum(clean.mean**2, axis=1)))
-            print(f"{size:>4} x{size:>3} {dic:>8} {one:>10.1f} {threads:>13.1f} "
-                  f"{rms_error(clean, shape):>9.3f} {rms_error(noisy, shape):>9.3f} "
-                  f"{clean.counts.mean():>7.1f} {mag:>7.2f}")
+            print(
+                f"{size:>4} x{size:>3} {dic:>8} {one:>10.1f} {threads:>13.1f} "
+                f"{rms_error(clean, shape):>9.3f} {rms_error(noisy, shape):>9.3f} "
+                f"{clean.counts.mean():>7.1f} {mag:>7.2f}"
+            )
 
 
 if __name__ == "__main__":

@@ -68,8 +68,8 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 from orix.quaternion import Rotation  # noqa: E402
 
-from kikuchipy_geomdic import (
-    comparison,  # noqa: E402
+from kikuchipy_geomdic import (  # noqa: E402
+    comparison,
     study,  # noqa: E402
     synthetic,  # noqa: E402
 )
@@ -85,18 +85,51 @@ STARTS = {
     "centred": dict(start="centred", orientation_error=0.3, dose=None),
 }
 COLUMNS = [
-    "method", "n_points", "time", "time_per_point", "time_at_n", "extrapolated", "speedup",
-    "iterations", "max_pc_error", "err_pcx", "err_pcy", "err_pcz", "err_tilt_difference",
-    "err_azimuthal", "misorientation", "misorientation_nocommon",
-    "misorientation_nocommon_median", "n_off", "common_rotation", "misorientation_rerefined",
-    "misorientation_rerefined_nocommon", "misorientation_rerefined_nocommon_median",
-    "time_rerefine", "ncc", "undetermined",
+    "method",
+    "n_points",
+    "time",
+    "time_per_point",
+    "time_at_n",
+    "extrapolated",
+    "speedup",
+    "iterations",
+    "max_pc_error",
+    "err_pcx",
+    "err_pcy",
+    "err_pcz",
+    "err_tilt_difference",
+    "err_azimuthal",
+    "misorientation",
+    "misorientation_nocommon",
+    "misorientation_nocommon_median",
+    "n_off",
+    "common_rotation",
+    "misorientation_rerefined",
+    "misorientation_rerefined_nocommon",
+    "misorientation_rerefined_nocommon_median",
+    "time_rerefine",
+    "ncc",
+    "undetermined",
 ]
 SHOW = [
-    "method", "n_points", "time", "time_per_point", "time_at_n", "extrapolated", "speedup",
-    "max_pc_error", "err_tilt_difference", "err_azimuthal", "misorientation",
-    "misorientation_nocommon", "misorientation_nocommon_median", "n_off", "common_rotation",
-    "misorientation_rerefined", "misorientation_rerefined_nocommon_median", "undetermined",
+    "method",
+    "n_points",
+    "time",
+    "time_per_point",
+    "time_at_n",
+    "extrapolated",
+    "speedup",
+    "max_pc_error",
+    "err_tilt_difference",
+    "err_azimuthal",
+    "misorientation",
+    "misorientation_nocommon",
+    "misorientation_nocommon_median",
+    "n_off",
+    "common_rotation",
+    "misorientation_rerefined",
+    "misorientation_rerefined_nocommon_median",
+    "undetermined",
 ]
 
 
@@ -136,9 +169,13 @@ def misorientations(rot: Rotation, truth: Rotation) -> dict[str, float]:
     c = Rotation.from_axes_angles(axis, np.deg2rad(angle))
     m = _angles(rot, truth)
     mc = _angles(rot * ~c, truth)
-    return dict(mean=float(m.mean()), nocommon=float(mc.mean()),
-                nocommon_median=float(np.median(mc)), n_off=int((mc > OFF).sum()),
-                common=angle)
+    return dict(
+        mean=float(m.mean()),
+        nocommon=float(mc.mean()),
+        nocommon_median=float(np.median(mc)),
+        n_off=int((mc > OFF).sum()),
+        common=angle,
+    )
 
 
 class _Recorder:
@@ -158,17 +195,21 @@ class _Recorder:
         def dic(sm, **k):
             res = o["dic"](sm, **k)
             rot = res.xmap.rotations
-            self.records.append(dict(
-                points=np.asarray(res.points), own=rot, rerefined=rot,
-                undetermined=" ".join(getattr(res, "undetermined", ()) or ()) or "-",
-            ))
+            self.records.append(
+                dict(
+                    points=np.asarray(res.points),
+                    own=rot,
+                    rerefined=rot,
+                    undetermined=" ".join(getattr(res, "undetermined", ()) or ()) or "-",
+                )
+            )
             return res
 
         def pw(*a, **k):
             xmap_r, det_r = o["pw"](*a, **k)
-            self.records.append(dict(
-                points=np.asarray(a[4]), own=xmap_r.rotations, undetermined="angles (fixed)"
-            ))
+            self.records.append(
+                dict(points=np.asarray(a[4]), own=xmap_r.rotations, undetermined="angles (fixed)")
+            )
             return xmap_r, det_r
 
         def ref(*a, **k):
@@ -190,8 +231,12 @@ def run_start(name, args, mp, side, out_dir, suffix):
     kw = STARTS[name]
     t0 = time.perf_counter()
     sm = synthetic.synthetic_map(
-        mp, (side, side), orientations=args.orientations, shape=(args.size, args.size),
-        seed=args.seed, **kw,
+        mp,
+        (side, side),
+        orientations=args.orientations,
+        shape=(args.size, args.size),
+        seed=args.seed,
+        **kw,
     )
     t_map = time.perf_counter() - t0
     nav = sm.geometry.navigation_shape
@@ -231,7 +276,8 @@ def run_start(name, args, mp, side, out_dir, suffix):
         rr = misorientations(rc["rerefined"], truth_all[f])
         r.update(
             misorientation_nocommon=own["nocommon"],
-            misorientation_nocommon_median=own["nocommon_median"], n_off=own["n_off"],
+            misorientation_nocommon_median=own["nocommon_median"],
+            n_off=own["n_off"],
             common_rotation=own["common"],
             misorientation_rerefined_nocommon=rr["nocommon"],
             misorientation_rerefined_nocommon_median=rr["nocommon_median"],
@@ -259,10 +305,20 @@ def _code_version() -> str:
 
     root = Path(__file__).resolve().parent.parent
     try:
-        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root,
-                              capture_output=True, text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "kikuchipy_geomdic"], cwd=root,
-                               capture_output=True, text=True, check=True).stdout.strip()
+        head = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "kikuchipy_geomdic"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
     return head + (" + uncommitted changes to kikuchipy_geomdic" if dirty else "")
@@ -277,9 +333,13 @@ def main(argv=None) -> int:
     ap.add_argument("--points", type=int, default=100, help="calibration points (a square)")
     ap.add_argument("--size", type=int, default=120, help="pattern side in px")
     ap.add_argument("--de-points", type=int, default=10)
-    ap.add_argument("--de-maxiter", type=int, default=50,
-                    help="SciPy differential_evolution maxiter (its default 1000 took ~290 s "
-                         "per 60 x 60 pattern here)")
+    ap.add_argument(
+        "--de-maxiter",
+        type=int,
+        default=50,
+        help="SciPy differential_evolution maxiter (its default 1000 took ~290 s "
+        "per 60 x 60 pattern here)",
+    )
     ap.add_argument("--orientations", default="random", choices=("random", "single", "variants"))
     ap.add_argument("--starts", nargs="+", default=list(STARTS), choices=list(STARTS))
     ap.add_argument("--seed", type=int, default=0)

@@ -35,10 +35,25 @@ from kikuchipy_geomdic.comparison import compare_methods
 
 RESULTS = Path(__file__).resolve().parent / "results"
 COLUMNS = [
-    "method", "n_points", "time", "time_per_point", "time_at_n", "extrapolated",
-    "iterations", "max_pc_error", "err_pcx", "err_pcy", "err_pcz", "err_tilt_difference",
-    "err_azimuthal", "pc_scatter", "misorientation", "misorientation_rerefined",
-    "time_rerefine", "disorientation", "ncc",
+    "method",
+    "n_points",
+    "time",
+    "time_per_point",
+    "time_at_n",
+    "extrapolated",
+    "iterations",
+    "max_pc_error",
+    "err_pcx",
+    "err_pcy",
+    "err_pcz",
+    "err_tilt_difference",
+    "err_azimuthal",
+    "pc_scatter",
+    "misorientation",
+    "misorientation_rerefined",
+    "time_rerefine",
+    "disorientation",
+    "ncc",
 ]
 
 
@@ -48,9 +63,13 @@ def main(argv=None) -> int:
     ap.add_argument("--points", type=int, default=100)
     ap.add_argument("--size", type=int, default=120)
     ap.add_argument("--de-points", type=int, default=10)
-    ap.add_argument("--de-maxiter", type=int, default=50,
-                    help="SciPy differential_evolution maxiter (default 1000 took ~290 s per "
-                         "60 x 60 pattern here)")
+    ap.add_argument(
+        "--de-maxiter",
+        type=int,
+        default=50,
+        help="SciPy differential_evolution maxiter (default 1000 took ~290 s per "
+        "60 x 60 pattern here)",
+    )
     ap.add_argument("--cases", nargs="+", default=["Si-single"])
     args = ap.parse_args(argv)
     if args.quick:
@@ -71,8 +90,12 @@ def main(argv=None) -> int:
     for case in args.cases:
         mat, orient = case.split("-")
         sm = synthetic.synthetic_map(
-            mat, (side, side), orientations=orient, shape=(args.size, args.size),
-            orientation_error=0.3, seed=0,
+            mat,
+            (side, side),
+            orientations=orient,
+            shape=(args.size, args.size),
+            orientation_error=0.3,
+            seed=0,
         )
         d0 = st.mean_displacement(sm.start_geometry, sm.geometry)
         print(
@@ -84,8 +107,9 @@ def main(argv=None) -> int:
             points=side * side,
             methods=("dic", "dic-fast", "nelder-mead", "differential-evolution"),
             method_points={"differential-evolution": args.de_points},
-            dic_configs={"dic-fast": dict(max_iterations=3,
-                                          refine_kwargs=dict(trust_region=[1, 1, 1]))},
+            dic_configs={
+                "dic-fast": dict(max_iterations=3, refine_kwargs=dict(trust_region=[1, 1, 1]))
+            },
             de_kwargs=dict(seed=0, maxiter=args.de_maxiter),
             verbose=True,
         )
@@ -93,12 +117,14 @@ def main(argv=None) -> int:
         by = {r["method"]: r for r in rows}
         ratios = []
         for fast in ("dic", "dic-fast"):
-            ratios.append(dict(
-                dic=fast,
-                de_over_dic=by["differential-evolution"]["time_at_n"] / by[fast]["time"],
-                nm_over_dic=by["nelder-mead"]["time_at_n"] / by[fast]["time"],
-                de_extrapolated=by["differential-evolution"]["extrapolated"],
-            ))
+            ratios.append(
+                dict(
+                    dic=fast,
+                    de_over_dic=by["differential-evolution"]["time_at_n"] / by[fast]["time"],
+                    nm_over_dic=by["nelder-mead"]["time_at_n"] / by[fast]["time"],
+                    de_extrapolated=by["differential-evolution"]["extrapolated"],
+                )
+            )
         print("\nSpeed-up (time ratios, same run; DE extrapolated from its time per point):")
         print(st.format_table(ratios))
         with open(RESULTS / f"methods_{case}{'_quick' if args.quick else ''}.csv", "w") as f:

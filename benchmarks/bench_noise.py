@@ -57,8 +57,7 @@ def real_ni_ncc() -> np.ndarray:
         s.remove_dynamic_background(show_progressbar=False)
         mp = kp.data.nickel_ebsd_master_pattern_small(projection="lambert", hemisphere="both")
         rot = s.xmap.rotations.reshape(*s.detector.navigation_shape)
-        sim = mp.get_patterns(rot, s.detector, energy=20, compute=True,
-                              show_progressbar=False)
+        sim = mp.get_patterns(rot, s.detector, energy=20, compute=True, show_progressbar=False)
     return _ncc(s.data.reshape(-1, 60, 60), sim.data.reshape(-1, 60, 60))
 
 
@@ -74,20 +73,28 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--doses", type=float, nargs="+", default=[1000, 100, 30, 10, 3])
     ap.add_argument("--binning", type=int, default=1, help="DIC binning of refine_geometry_dic")
-    ap.add_argument("--dic-blur", type=float, default=0.0,
-                    help="blur (px) of the simulated patterns before DIC (dic_kwargs['blur'])")
+    ap.add_argument(
+        "--dic-blur",
+        type=float,
+        default=0.0,
+        help="blur (px) of the simulated patterns before DIC (dic_kwargs['blur'])",
+    )
     ap.add_argument("--rois", type=int, default=8, help="ROI grid side")
     ap.add_argument("--map", type=int, default=5, help="map side (points = side^2)")
     ap.add_argument("--suffix", default="")
     args = ap.parse_args(argv)
     doses = [100.0, 3.0] if args.quick else args.doses
-    print(f"Machine: {platform.node()}, {os.cpu_count()} CPUs (shared), Python "
-          f"{platform.python_version()}; map {args.map} x {args.map}, ROIs {args.rois}, DIC binning "
-          f"{args.binning}, DIC blur {args.dic_blur}")
+    print(
+        f"Machine: {platform.node()}, {os.cpu_count()} CPUs (shared), Python "
+        f"{platform.python_version()}; map {args.map} x {args.map}, ROIs {args.rois}, DIC binning "
+        f"{args.binning}, DIC blur {args.dic_blur}"
+    )
     t_all = time.perf_counter()
     ni = real_ni_ncc()
-    print(f"Real Ni (kikuchipy nickel_ebsd_small, 9 patterns): NCC to simulation "
-          f"{ni.mean():.3f} (min {ni.min():.3f}, max {ni.max():.3f})")
+    print(
+        f"Real Ni (kikuchipy nickel_ebsd_small, 9 patterns): NCC to simulation "
+        f"{ni.mean():.3f} (min {ni.min():.3f}, max {ni.max():.3f})"
+    )
     levels = (-0.5, 0.5)
     pairs = [("pcx", "pcz"), ("tilt", "azimuthal")]
     if args.quick:
@@ -96,15 +103,26 @@ def main(argv=None) -> int:
     for dose in doses:
         ncc = synthetic_ncc(dose)
         nav = (args.map, args.map)
-        rkw = dict(max_iterations=4, refine_kwargs=dict(trust_region=[1, 1, 1]),
-                   binning=args.binning, rois=(args.rois, args.rois))
+        rkw = dict(
+            max_iterations=4,
+            refine_kwargs=dict(trust_region=[1, 1, 1]),
+            binning=args.binning,
+            rois=(args.rois, args.rois),
+        )
         if args.dic_blur:
             rkw["dic_kwargs"] = dict(blur=args.dic_blur)
         study = st.perturbation_study(
-            "Si", pairs=pairs, levels=levels, navigation_shape=nav, shape=(60, 60),
-            orientations="random", base_geometry=st.paper_geometry(nav, (60, 60)),
+            "Si",
+            pairs=pairs,
+            levels=levels,
+            navigation_shape=nav,
+            shape=(60, 60),
+            orientations="random",
+            base_geometry=st.paper_geometry(nav, (60, 60)),
             refine_kwargs=rkw,
-            dose=dose, blur=0.5, n_workers=args.workers,
+            dose=dose,
+            blur=0.5,
+            n_workers=args.workers,
         )
         t = study.table
         if study.settings["errors"]:

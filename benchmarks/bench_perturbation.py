@@ -43,8 +43,15 @@ def fill_eq2(table, material, nav, shape, seed=0):
     if not missing.any():
         return table
     base = st.paper_geometry(nav, shape)
-    sm = synthetic.synthetic_map(material, nav, orientations=ORIENTATIONS.get(material, "random"),
-                                 geometry=base, perturbation={}, orientation_error=0, seed=seed)
+    sm = synthetic.synthetic_map(
+        material,
+        nav,
+        orientations=ORIENTATIONS.get(material, "random"),
+        geometry=base,
+        perturbation={},
+        orientation_error=0,
+        seed=seed,
+    )
     pts = st._all_points(nav)
     for i in np.flatnonzero(missing):
         r = table[i]
@@ -62,19 +69,32 @@ def report(study, mat, tag, quick=False):
     s_eq2 = study.summary(axis="initial_displacement_eq2")
     s["material"] = mat
     s["orientations"] = ORIENTATIONS.get(mat, "random")
-    for k in ("min_failed_displacement", "max_success_displacement", "success_below_2%",
-              "success_below_4%", "success_below_6%"):
+    for k in (
+        "min_failed_displacement",
+        "max_success_displacement",
+        "success_below_2%",
+        "success_below_4%",
+        "success_below_6%",
+    ):
         s[f"{k}_eq2"] = s_eq2[k]
     with open(RESULTS / f"perturbation_{tag}_summary.json", "w") as f:
         json.dump(
-            dict(summary=s, settings={k: str(v) for k, v in study.settings.items()},
-                 scale=study.scale, coupling=np.round(study.coupling, 3).tolist()),
-            f, indent=1,
+            dict(
+                summary=s,
+                settings={k: str(v) for k, v in study.settings.items()},
+                scale=study.scale,
+                coupling=np.round(study.coupling, 3).tolist(),
+            ),
+            f,
+            indent=1,
         )
     study.plot_success().savefig(RESULTS / f"perturbation_{tag}_success.png", dpi=110)
     study.plot_success(axis="initial_displacement_eq2").savefig(
-        RESULTS / f"perturbation_{tag}_success_eq2.png", dpi=110)
-    study.plot_heatmaps(metric="final_ncc").savefig(RESULTS / f"perturbation_{tag}_ncc.png", dpi=110)
+        RESULTS / f"perturbation_{tag}_success_eq2.png", dpi=110
+    )
+    study.plot_heatmaps(metric="final_ncc").savefig(
+        RESULTS / f"perturbation_{tag}_ncc.png", dpi=110
+    )
     study.plot_heatmaps(metric="misorientation").savefig(
         RESULTS / f"perturbation_{tag}_misorientation.png", dpi=110
     )
@@ -90,10 +110,16 @@ def report(study, mat, tag, quick=False):
     rows = []
     for p in pairs_done:
         t = study.table[(study.table["param1"] == p[0]) & (study.table["param2"] == p[1])]
-        rows.append(dict(pair=f"{p[0]}-{p[1]}", runs=t.size, success_ncc=int(t["success_ncc"].sum()),
-                         success=int(t["success"].sum()),
-                         max_d0=float(t["initial_displacement"].max()),
-                         max_d0_eq2=float(t["initial_displacement_eq2"].max())))
+        rows.append(
+            dict(
+                pair=f"{p[0]}-{p[1]}",
+                runs=t.size,
+                success_ncc=int(t["success_ncc"].sum()),
+                success=int(t["success"].sum()),
+                max_d0=float(t["initial_displacement"].max()),
+                max_d0_eq2=float(t["initial_displacement_eq2"].max()),
+            )
+        )
     print(st.format_table(rows))
     return s
 
@@ -119,9 +145,13 @@ def postprocess(args) -> int:
         if jpath.exists():
             old = json.load(open(jpath)).get("summary", {})
         wall = args.wall.get(mat, old.get("wall_time", float("nan")))
-        study = st.PerturbationStudy(table=table, scale=scale, coupling=coupling,
-                                      settings=dict(material=mat, navigation_shape=nav, shape=shape),
-                                      wall_time=wall)
+        study = st.PerturbationStudy(
+            table=table,
+            scale=scale,
+            coupling=coupling,
+            settings=dict(material=mat, navigation_shape=nav, shape=shape),
+            wall_time=wall,
+        )
         summaries.append(report(study, mat, tag, args.quick))
         plt.close("all")
     print(st.format_table(summaries, SUMMARY_COLUMNS))
@@ -129,10 +159,22 @@ def postprocess(args) -> int:
 
 
 SUMMARY_COLUMNS = [
-    "material", "orientations", "runs", "success_ncc", "success", "min_failed_displacement",
-    "max_success_displacement", "success_below_4%", "success_below_6%",
-    "min_failed_displacement_eq2", "max_success_displacement_eq2", "success_below_4%_eq2",
-    "success_below_6%_eq2", "median_abs_pc_error", "median_misorientation", "mean_run_time",
+    "material",
+    "orientations",
+    "runs",
+    "success_ncc",
+    "success",
+    "min_failed_displacement",
+    "max_success_displacement",
+    "success_below_4%",
+    "success_below_6%",
+    "min_failed_displacement_eq2",
+    "max_success_displacement_eq2",
+    "success_below_4%_eq2",
+    "success_below_6%_eq2",
+    "median_abs_pc_error",
+    "median_misorientation",
+    "mean_run_time",
     "wall_time",
 ]
 
@@ -145,20 +187,36 @@ def main(argv=None) -> int:
     ap.add_argument("--size", type=int, default=60, help="pattern side in px")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--max-iterations", type=int, default=4)
-    ap.add_argument("--trust", type=float, default=1.0,
-                    help="orientation trust region (deg) of the orientation refinement; "
-                         "0 for none")
-    ap.add_argument("--default-settings", action="store_true",
-                    help="refine_geometry_dic defaults (no trust region, 10 iterations)")
-    ap.add_argument("--pairs", nargs="*", default=None,
-                    help="pairs as name1,name2 (default all 15)")
-    ap.add_argument("--levels", type=float, nargs="+", default=None,
-                    help="perturbation levels as fractions of d (default -1 -0.5 0 0.5 1)")
+    ap.add_argument(
+        "--trust",
+        type=float,
+        default=1.0,
+        help="orientation trust region (deg) of the orientation refinement; 0 for none",
+    )
+    ap.add_argument(
+        "--default-settings",
+        action="store_true",
+        help="refine_geometry_dic defaults (no trust region, 10 iterations)",
+    )
+    ap.add_argument(
+        "--pairs", nargs="*", default=None, help="pairs as name1,name2 (default all 15)"
+    )
+    ap.add_argument(
+        "--levels",
+        type=float,
+        nargs="+",
+        default=None,
+        help="perturbation levels as fractions of d (default -1 -0.5 0 0.5 1)",
+    )
     ap.add_argument("--suffix", default="")
-    ap.add_argument("--postprocess", action="store_true",
-                    help="only re-read the CSVs: fill the Eq. 2 axis, redo figures and tables")
-    ap.add_argument("--wall", nargs="*", default=[],
-                    help="material=minutes of wall time, for --postprocess")
+    ap.add_argument(
+        "--postprocess",
+        action="store_true",
+        help="only re-read the CSVs: fill the Eq. 2 axis, redo figures and tables",
+    )
+    ap.add_argument(
+        "--wall", nargs="*", default=[], help="material=minutes of wall time, for --postprocess"
+    )
     args = ap.parse_args(argv)
     args.wall = {w.split("=")[0]: 60 * float(w.split("=")[1]) for w in args.wall}
     if args.postprocess:
@@ -181,7 +239,8 @@ def main(argv=None) -> int:
     shape = (args.size, args.size)
     RESULTS.mkdir(parents=True, exist_ok=True)
     print(
-        f"Machine: {platform.node()}, {os.cpu_count()} CPUs, {platform.processor() or platform.machine()}, "
+        f"Machine: {platform.node()}, {os.cpu_count()} CPUs, "
+        f"{platform.processor() or platform.machine()}, "
         f"Python {platform.python_version()}; workers {args.workers}"
     )
     print(f"Map {nav}, patterns {shape}, refine_kwargs {rkw}, levels {levels}")
@@ -195,20 +254,32 @@ def main(argv=None) -> int:
         parts, t_mat = [], time.perf_counter()
         for pair in pairs or st.PAPER_PAIRS:
             part = st.perturbation_study(
-                mat, pairs=[pair], levels=levels, navigation_shape=nav, shape=shape,
-                orientations=ORIENTATIONS.get(mat, "random"), base_geometry=geo,
-                refine_kwargs=rkw, n_workers=args.workers, verbose=True,
+                mat,
+                pairs=[pair],
+                levels=levels,
+                navigation_shape=nav,
+                shape=shape,
+                orientations=ORIENTATIONS.get(mat, "random"),
+                base_geometry=geo,
+                refine_kwargs=rkw,
+                n_workers=args.workers,
+                verbose=True,
             )
             parts.append(part)
             study = st.PerturbationStudy(
-                table=np.concatenate([p.table for p in parts]), scale=part.scale,
-                coupling=part.coupling, settings=dict(part.settings, pairs=pairs or st.PAPER_PAIRS),
+                table=np.concatenate([p.table for p in parts]),
+                scale=part.scale,
+                coupling=part.coupling,
+                settings=dict(part.settings, pairs=pairs or st.PAPER_PAIRS),
                 wall_time=time.perf_counter() - t_mat,
             )
             study.save(RESULTS / f"perturbation_{tag}.csv")
-            print(f"-- {mat} {pair}: {int(part.table['success'].sum())}/{part.table.size} "
-                  f"successes, {part.wall_time:.0f} s; total {(time.perf_counter() - t_mat) / 60:.1f} min",
-                  flush=True)
+            print(
+                f"-- {mat} {pair}: {int(part.table['success'].sum())}/{part.table.size} "
+                f"successes, {part.wall_time:.0f} s; "
+                f"total {(time.perf_counter() - t_mat) / 60:.1f} min",
+                flush=True,
+            )
         summaries.append(report(study, mat, tag, args.quick))
     print(f"\nAll materials: {(time.perf_counter() - t_all) / 60:.1f} min")
     print(st.format_table(summaries, SUMMARY_COLUMNS))

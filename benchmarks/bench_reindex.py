@@ -134,8 +134,20 @@ STAGES = {"baseline": stage_baseline, "generate": stage_generate, "reindex": sta
 
 
 def _run_stage(name: str, args) -> dict:
-    cmd = [sys.executable, __file__, "--stage", name, "--rows", str(args.rows),
-           "--cols", str(args.cols), "--size", str(args.size), "--workdir", args.workdir]
+    cmd = [
+        sys.executable,
+        __file__,
+        "--stage",
+        name,
+        "--rows",
+        str(args.rows),
+        "--cols",
+        str(args.cols),
+        "--size",
+        str(args.size),
+        "--workdir",
+        args.workdir,
+    ]
     if args.workers:
         cmd += ["--workers", str(args.workers)]
     if args.quiet:
@@ -144,7 +156,7 @@ def _run_stage(name: str, args) -> dict:
     proc = subprocess.run(cmd, stdout=subprocess.PIPE, text=True)
     for line in proc.stdout.splitlines():
         if line.startswith(MARK):
-            result = json.loads(line[len(MARK):])
+            result = json.loads(line[len(MARK) :])
             break
         print(line)
     else:
@@ -188,14 +200,20 @@ def main(argv=None) -> int:
         f"\nMap {args.rows} x {args.cols} of {args.size} x {args.size} px: "
         f"{float32_mb:.0f} MB as float32, {results['generate']['file_mb']:.0f} MB on disk (uint8)."
     )
-    print(f"  generate + write (lazy):  {results['generate']['seconds']:8.1f} s, "
-          f"peak RSS {results['generate']['peak_rss_mb']:7.0f} MB")
-    print(f"  reindex (lazy):           {r['seconds']:8.1f} s, peak RSS {r['peak_rss_mb']:7.0f} MB "
-          f"({r['patterns_per_second']:.1f} patterns/s)")
+    print(
+        f"  generate + write (lazy):  {results['generate']['seconds']:8.1f} s, "
+        f"peak RSS {results['generate']['peak_rss_mb']:7.0f} MB"
+    )
+    print(
+        f"  reindex (lazy):           {r['seconds']:8.1f} s, peak RSS {r['peak_rss_mb']:7.0f} MB "
+        f"({r['patterns_per_second']:.1f} patterns/s)"
+    )
     print(f"  baseline (imports + MP):  {'':8} peak RSS {b['peak_rss_mb']:7.0f} MB")
-    print(f"  orientation error: {r['misorientation_start_deg']:.3f} deg -> "
-          f"{r['misorientation_after_deg']:.4f} deg, mean NCC {r['mean_ncc']:.4f}, "
-          f"still lazy: {r['still_lazy']}")
+    print(
+        f"  orientation error: {r['misorientation_start_deg']:.3f} deg -> "
+        f"{r['misorientation_after_deg']:.4f} deg, mean NCC {r['mean_ncc']:.4f}, "
+        f"still lazy: {r['still_lazy']}"
+    )
     if args.json:
         Path(args.json).write_text(json.dumps(summary, indent=2) + "\n")
     return 0

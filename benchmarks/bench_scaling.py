@@ -3,7 +3,7 @@ calibration points N and the pattern size, with a per-stage profile.
 
 Usage::
 
-    python benchmarks/bench_scaling.py            # N = 25, 100, 400 at 60 px; 60, 120, 240 px at N = 25
+    python benchmarks/bench_scaling.py   # N = 25, 100, 400 at 60 px; 60, 120, 240 px at N = 25
     python benchmarks/bench_scaling.py --quick    # N = 9, 25 at 40 px
 
 Each configuration runs ``refine_geometry_dic`` once (Si polycrystal, the
@@ -57,20 +57,29 @@ def run(side: int, size: int, max_iterations: int = 4) -> dict:
         warnings.simplefilter("ignore")
         prof.enable()
         res = refine_geometry_dic(
-            sm.signal, sm.start_xmap, sm.start_detector, sm.master_pattern, sm.energy,
-            points=side * side, max_iterations=max_iterations, show_progressbar=False,
+            sm.signal,
+            sm.start_xmap,
+            sm.start_detector,
+            sm.master_pattern,
+            sm.energy,
+            points=side * side,
+            max_iterations=max_iterations,
+            show_progressbar=False,
         )
         prof.disable()
     wall = time.perf_counter() - t0
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     stats = pstats.Stats(prof)
-    row = dict(points=side * side, size=size, time=wall, iterations=len(res.history),
-               peak_mib=peak / 2**20)
+    row = dict(
+        points=side * side,
+        size=size,
+        time=wall,
+        iterations=len(res.history),
+        peak_mib=peak / 2**20,
+    )
     for stage, (fname, func) in STAGES.items():
-        cum = sum(
-            v[3] for k, v in stats.stats.items() if k[0].endswith(fname) and k[2] == func
-        )
+        cum = sum(v[3] for k, v in stats.stats.items() if k[0].endswith(fname) and k[2] == func)
         row[f"t_{stage}"] = cum
     row["t_other"] = wall - sum(row[f"t_{s}"] for s in STAGES)
     dom = max(STAGES, key=lambda s: row[f"t_{s}"])
@@ -106,10 +115,16 @@ def main(argv=None) -> int:
     for side, size in configs:
         rows.append(run(side, size))
         r = rows[-1]
-        print(f"N={r['points']} size={r['size']}: {r['time']:.1f} s, peak {r['peak_mib']:.0f} MiB, "
-              f"{r['dominant']} {100 * r['dominant_share']:.0f} %", flush=True)
-    cols = ["points", "size", "time", "iterations", "peak_mib"] + [f"t_{s}" for s in STAGES] + [
-        "t_other", "dominant", "dominant_share", "max_pc_error"]
+        print(
+            f"N={r['points']} size={r['size']}: {r['time']:.1f} s, peak {r['peak_mib']:.0f} MiB, "
+            f"{r['dominant']} {100 * r['dominant_share']:.0f} %",
+            flush=True,
+        )
+    cols = (
+        ["points", "size", "time", "iterations", "peak_mib"]
+        + [f"t_{s}" for s in STAGES]
+        + ["t_other", "dominant", "dominant_share", "max_pc_error"]
+    )
     print(st.format_table(rows, cols))
     RESULTS.mkdir(parents=True, exist_ok=True)
     with open(RESULTS / f"scaling{'_quick' if args.quick else ''}.csv", "w") as f:

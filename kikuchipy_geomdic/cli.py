@@ -677,12 +677,21 @@ class _Staging:
 def _history_csv(history: list[dict], names: Sequence[str]) -> str:
     from kikuchipy_geomdic.conventions import csv_text
 
-    cols = ["iteration", "accepted", "damping", "ncc_before", "ncc_after",
-            "displacement_before", "displacement_after"]
+    cols = [
+        "iteration",
+        "accepted",
+        "damping",
+        "ncc_before",
+        "ncc_after",
+        "displacement_before",
+        "displacement_after",
+    ]
     # accepted as 1 or 0, which every CSV reader takes for a number
     rows = (
-        [*(int(h[c]) if c == "accepted" else h[c] for c in cols),
-         *(h["parameters"][n] for n in names)]
+        [
+            *(int(h[c]) if c == "accepted" else h[c] for c in cols),
+            *(h["parameters"][n] for n in names),
+        ]
         for h in history
     )
     return csv_text([*cols, *names], rows)

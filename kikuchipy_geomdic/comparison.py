@@ -39,16 +39,29 @@ __all__ = ["compare_methods"]
 
 
 def _pattern_wise(
-    experimental, start_rot, phase, start_geo, points, master_pattern, energy, method,
-    method_kwargs, trust_region,
+    experimental,
+    start_rot,
+    phase,
+    start_geo,
+    points,
+    master_pattern,
+    energy,
+    method,
+    method_kwargs,
+    trust_region,
 ):
     """kikuchipy's pattern-wise orientation and PC refinement of the points."""
     signal, xmap = _stack_signal(experimental, start_rot, phase)
     with _quiet(), warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return signal.refine_orientation_projection_center(
-            xmap, start_geo.detector(points), master_pattern, energy, method=method,
-            method_kwargs=dict(method_kwargs or {}), trust_region=trust_region,
+            xmap,
+            start_geo.detector(points),
+            master_pattern,
+            energy,
+            method=method,
+            method_kwargs=dict(method_kwargs or {}),
+            trust_region=trust_region,
         )
 
 
@@ -173,9 +186,7 @@ def compare_methods(
             if method in configs:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
-                    res = sm.refine_geometry(
-                        points=pts, show_progressbar=False, **configs[method]
-                    )
+                    res = sm.refine_geometry(points=pts, show_progressbar=False, **configs[method])
                 row["time"] = time.perf_counter() - t0
                 geo = res.geometry
                 rot = res.xmap.rotations
@@ -192,8 +203,16 @@ def compare_methods(
                 else:
                     m, mkw = "differential_evolution", dict(de_kwargs or {"seed": 0})
                 xmap_r, det_r = _pattern_wise(
-                    exp, start_rot_all[flat], phase, start, pts, sm.master_pattern,
-                    sm.energy, m, mkw, list(trust_region),
+                    exp,
+                    start_rot_all[flat],
+                    phase,
+                    start,
+                    pts,
+                    sm.master_pattern,
+                    sm.energy,
+                    m,
+                    mkw,
+                    list(trust_region),
                 )
                 row["time"] = time.perf_counter() - t0
                 pcs = det_r.pc.reshape(-1, 3)

@@ -219,24 +219,44 @@ def _vendor_fields(conv: str, pc, det: EBSDDetector) -> tuple[dict, list[str]]:
     map them, and the non-zero angles those fields do not carry."""
     x, y, z = (float(v) for v in pc)
     if conv == "bruker":
-        fields = {"PCX": x, "PCY": y, "DD": z, "CameraTilt": det.tilt,
-                  "Sample Tilt": det.sample_tilt}
+        fields = {
+            "PCX": x,
+            "PCY": y,
+            "DD": z,
+            "CameraTilt": det.tilt,
+            "Sample Tilt": det.sample_tilt,
+        }
         carried = ("tilt", "sample_tilt")
     elif conv == "tsl":
-        fields = {"x-star": x, "y-star": y, "z-star": z,
-                  "Camera Elevation Angle": det.tilt,
-                  "Camera Azimuthal Angle": det.azimuthal,
-                  "Sample Tilt": det.sample_tilt}
+        fields = {
+            "x-star": x,
+            "y-star": y,
+            "z-star": z,
+            "Camera Elevation Angle": det.tilt,
+            "Camera Azimuthal Angle": det.azimuthal,
+            "Sample Tilt": det.sample_tilt,
+        }
         carried = ("tilt", "azimuthal", "sample_tilt")
     elif conv == "oxford":
-        fields = {"Pattern Center X": x, "Pattern Center Y": y, "Detector Distance": z,
-                  "Tilt Angle (rad)": math.radians(det.sample_tilt),
-                  "Detector Orientation Euler Phi (rad)": math.radians(det.tilt + 90)}
+        fields = {
+            "Pattern Center X": x,
+            "Pattern Center Y": y,
+            "Detector Distance": z,
+            "Tilt Angle (rad)": math.radians(det.sample_tilt),
+            "Detector Orientation Euler Phi (rad)": math.radians(det.tilt + 90),
+        }
         carried = ("tilt", "sample_tilt")
     else:
-        fields = {"xpc": x, "ypc": y, "L": z, "thetac": det.tilt,
-                  "delta": float(det.px_size), "binning": float(det.binning),
-                  "numsx": int(det.ncols), "numsy": int(det.nrows)}
+        fields = {
+            "xpc": x,
+            "ypc": y,
+            "L": z,
+            "thetac": det.tilt,
+            "delta": float(det.px_size),
+            "binning": float(det.binning),
+            "numsx": int(det.ncols),
+            "numsy": int(det.nrows),
+        }
         carried = ("tilt",)
     lost = [a for a in _ANGLES if a not in carried and getattr(det, a) != 0]
     return fields, lost
@@ -380,8 +400,9 @@ def _atomic_path(path: Path):
     """A temporary file beside *path* (same file system, so os.replace is
     atomic), keeping the extension (numpy.savetxt looks at it), with the
     permissions a new file gets (mkstemp's are owner-only)."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".tmp",
-                               dir=path.parent)
+    fd, tmp = tempfile.mkstemp(
+        prefix=f".{path.name}.", suffix=path.suffix or ".tmp", dir=path.parent
+    )
     os.close(fd)
     umask = os.umask(0)
     os.umask(umask)
@@ -451,15 +472,14 @@ def csv_text(columns: Sequence[str], rows: Iterable[Sequence[Any]], digits: int 
     lines = [",".join(columns)]
     for row in rows:
         lines.append(
-            ",".join(f"{v:.{digits}g}" if isinstance(v, (float, np.floating)) else str(v)
-                     for v in row)
+            ",".join(
+                f"{v:.{digits}g}" if isinstance(v, (float, np.floating)) else str(v) for v in row
+            )
         )
     return "\n".join(lines) + "\n"
 
 
-def save_detector(
-    detector: EBSDDetector, path: str | Path, convention: str = "bruker"
-) -> Path:
+def save_detector(detector: EBSDDetector, path: str | Path, convention: str = "bruker") -> Path:
     """Write a detector in kikuchipy's text format, exactly and atomically.
 
     Uses :meth:`~kikuchipy.detectors.EBSDDetector.save` (its header records
@@ -741,9 +761,7 @@ def read_summary(path: str | Path) -> dict[str, Any]:
     return summary
 
 
-def geometry_from_summary(
-    summary: Mapping[str, Any], convention: str = "bruker"
-) -> MapGeometry:
+def geometry_from_summary(summary: Mapping[str, Any], convention: str = "bruker") -> MapGeometry:
     """Rebuild the calibrated map geometry from a summary.
 
     Parameters
@@ -808,9 +826,11 @@ def format_summary(summary: Mapping[str, Any]) -> str:
             f"{name:<13}{s[name]:>13.{d}f}{g[name]:>13.{d}f}{g[name] - s[name]:>+13.{d}f}"
             f"  {unit}{mark}"
         )
-    lines.append(f"{'tilt-s_tilt':<13}{s['tilt'] - s['sample_tilt']:>13.4f}"
-                 f"{g['tilt'] - g['sample_tilt']:>13.4f}"
-                 f"{(g['tilt'] - g['sample_tilt']) - (s['tilt'] - s['sample_tilt']):>+13.4f}  deg")
+    lines.append(
+        f"{'tilt-s_tilt':<13}{s['tilt'] - s['sample_tilt']:>13.4f}"
+        f"{g['tilt'] - g['sample_tilt']:>13.4f}"
+        f"{(g['tilt'] - g['sample_tilt']) - (s['tilt'] - s['sample_tilt']):>+13.4f}  deg"
+    )
     ref = ", ".join(f"{v:g}" for v in g["reference"])
     lines.append("")
     lines.append(

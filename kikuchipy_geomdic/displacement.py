@@ -149,9 +149,7 @@ def roi_edges(
     (array([ 0,  3,  7, 10]), array([ 0,  3,  6,  9, 12]))
     """
     shape, rois = _check_grid(shape, rois)
-    return tuple(
-        np.round(np.linspace(0, s, n + 1)).astype(np.int64) for s, n in zip(shape, rois)
-    )
+    return tuple(np.round(np.linspace(0, s, n + 1)).astype(np.int64) for s, n in zip(shape, rois))
 
 
 def roi_centres(shape: tuple[int, int], rois: tuple[int, int] = (8, 8)) -> np.ndarray:
@@ -480,8 +478,7 @@ def resolve_backend(dic: str = "auto") -> str:
         return "opencv"
     if dic == "opencv":
         raise ImportError(
-            "dic='opencv' needs OpenCV (pip install opencv-python-headless); "
-            "or use dic='skimage'"
+            "dic='opencv' needs OpenCV (pip install opencv-python-headless); or use dic='skimage'"
         )
     return "skimage"
 
@@ -1041,14 +1038,19 @@ class DisplacementField:
         """Return the ROI index of points, see :func:`roi_index`."""
         return roi_index(x, y, self.shape, self.rois)
 
-    def select(self, index) -> "DisplacementField":
+    def select(self, index) -> DisplacementField:
         """Return the field of a subset of the patterns (any NumPy index)."""
         index = np.arange(self.n_patterns)[index]
         index = np.atleast_1d(index)
         vectors = None if self.vectors is None else tuple(self.vectors[i] for i in index)
         return DisplacementField(
-            self.u[index], self.counts[index], self.positions[index],
-            self.shape, self.rois, self.backend, vectors,
+            self.u[index],
+            self.counts[index],
+            self.positions[index],
+            self.shape,
+            self.rois,
+            self.backend,
+            vectors,
         )
 
 

@@ -38,8 +38,8 @@ report feature positions. kikuchipy's simulation places that centre at
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Mapping, Sequence
 
 import numpy as np
 from kikuchipy.detectors import EBSDDetector
@@ -260,9 +260,7 @@ def pc_field(
     d = s @ m.T / (px_size * binning)  # Detector frame, in binned pixels
     # The source sits at (pcx Nx, -pcy Ny, -pcz Ny) from the screen's
     # upper-left corner in the detector frame
-    return pc + np.stack(
-        [d[..., 0] / ncols, -d[..., 1] / nrows, -d[..., 2] / nrows], axis=-1
-    )
+    return pc + np.stack([d[..., 0] / ncols, -d[..., 1] / nrows, -d[..., 2] / nrows], axis=-1)
 
 
 def forward_map(
@@ -513,7 +511,7 @@ class MapGeometry:
         step_sizes: tuple[float, float],
         navigation_shape: tuple[int, int],
         reference: tuple[float, float] | None = None,
-    ) -> "MapGeometry":
+    ) -> MapGeometry:
         """Return the geometry of a detector with one PC or a PC map.
 
         With one PC, that PC is taken at *reference* (default the map
@@ -578,7 +576,7 @@ class MapGeometry:
         """Return ``{name: value}`` for all :data:`PARAMETERS`."""
         return dict(zip(PARAMETERS, map(float, self.values())))
 
-    def updated(self, delta: Mapping[str, float]) -> "MapGeometry":
+    def updated(self, delta: Mapping[str, float]) -> MapGeometry:
         """Return a new geometry with parameter changes added.
 
         PC changes are added to the reference PC, angle changes to the
@@ -664,7 +662,7 @@ class MapGeometry:
 
     def displacement(
         self,
-        other: "MapGeometry",
+        other: MapGeometry,
         points: np.ndarray,
         x: np.ndarray,
         y: np.ndarray,

@@ -24,7 +24,7 @@ are derived from their equivalent, never measured twice: the
 
 from __future__ import annotations
 
-from typing import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -81,7 +81,8 @@ def finite_difference_jacobian(
     >>> from kikuchipy_geomdic.jacobian import finite_difference_jacobian
     >>> geo = MapGeometry((0.5, 0.3, 0.6), (60, 60), 70, 8, (10, 10), (3, 3))
     >>> b = lambda g: np.array([2 * g.pc[0], -g.tilt])
-    >>> finite_difference_jacobian(b, geo, ["pcx", "tilt"], {"pcx": 0.01, "tilt": 0.5}).round(9).tolist()
+    >>> steps = {"pcx": 0.01, "tilt": 0.5}
+    >>> finite_difference_jacobian(b, geo, ["pcx", "tilt"], steps).round(9).tolist()
     [[2.0, 0.0], [0.0, -1.0]]
     """
 
@@ -167,9 +168,7 @@ def pattern_jacobian(
     h = ROTATION_STEP
     cols = []
     for k in range(3):
-        mats = [
-            np.broadcast_to(_axis_rotation(k, s * h), (n, 3, 3)) for s in (1, -1)
-        ]
+        mats = [np.broadcast_to(_axis_rotation(k, s * h), (n, 3, 3)) for s in (1, -1)]
         d_plus = geometry.displacement(geometry, points, x, y, mats[0])
         d_minus = geometry.displacement(geometry, points, x, y, mats[1])
         cols.append(-np.nan_to_num((d_plus - d_minus) / (2 * h)))

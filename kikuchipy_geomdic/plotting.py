@@ -43,8 +43,15 @@ def _quiver(ax, field, uv, pattern=None, scale=None, color="C1", title=None):
         ax.axhline(e - 0.5, color="w" if pattern is not None else "0.8", lw=0.5, ls="--")
     c = field.centres
     q = ax.quiver(
-        c[:, 0], c[:, 1], uv[:, 0], uv[:, 1], color=color, angles="xy",
-        scale_units="xy", scale=scale, width=0.006,
+        c[:, 0],
+        c[:, 1],
+        uv[:, 0],
+        uv[:, 1],
+        color=color,
+        angles="xy",
+        scale_units="xy",
+        scale=scale,
+        width=0.006,
     )
     ax.set_aspect("equal")
     ax.set_xticks([])
@@ -184,9 +191,14 @@ def plot_convergence(history):
         ncc = [history[0]["ncc_before"]] + [h["ncc_after"] for h in history]
         disp = [history[0]["displacement_before"]] + [h["displacement_after"] for h in history]
         acc = [True] + [h["accepted"] for h in history]
-        for ax, y, lab in ((a1, ncc, "mean NCC"), (a2, 100 * np.array(disp), "displacement (% of width)")):
+        for ax, y, lab in (
+            (a1, ncc, "mean NCC"),
+            (a2, 100 * np.array(disp), "displacement (% of width)"),
+        ):
             ax.plot(x, y, "-", color="0.6")
-            ax.plot(x[np.array(acc)], np.array(y)[np.array(acc)], "o", color="C0", label="accepted")
+            ax.plot(
+                x[np.array(acc)], np.array(y)[np.array(acc)], "o", color="C0", label="accepted"
+            )
             rej = ~np.array(acc)
             if rej.any():
                 ax.plot(x[rej], np.array(y)[rej], "x", color="C3", label="rejected")
@@ -309,8 +321,13 @@ def plot_heatmaps(
     k = len(names)
     full = all((a, b) in pairs or (b, a) in pairs for a, b in itertools.combinations(names, 2))
     if full and k > 2:
-        fig, axes = plt.subplots(k - 1, k - 1, figsize=(2.0 * (k - 1), 2.0 * (k - 1)),
-                                 layout="constrained", squeeze=False)
+        fig, axes = plt.subplots(
+            k - 1,
+            k - 1,
+            figsize=(2.0 * (k - 1), 2.0 * (k - 1)),
+            layout="constrained",
+            squeeze=False,
+        )
         for a in axes.ravel():
             a.set_visible(False)
         where = {}
@@ -318,8 +335,9 @@ def plot_heatmaps(
             i, j = sorted((names.index(p1), names.index(p2)))
             where[(p1, p2)] = axes[j - 1, i]
     else:
-        fig, axes = plt.subplots(1, len(pairs), figsize=(2.4 * len(pairs), 2.4),
-                                 layout="constrained", squeeze=False)
+        fig, axes = plt.subplots(
+            1, len(pairs), figsize=(2.4 * len(pairs), 2.4), layout="constrained", squeeze=False
+        )
         where = {p: axes[0, i] for i, p in enumerate(pairs)}
     im = None
     for (p1, p2), ax in where.items():

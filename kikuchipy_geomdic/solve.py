@@ -129,8 +129,7 @@ def solve_update(
     w = np.asarray(weights, dtype=np.float64)
     if j.ndim != 2 or b.shape != (j.shape[0],):
         raise ValueError(
-            f"Jacobian {j.shape} and residual {b.shape} do not match: expected "
-            "(2R, K) and (2R,)"
+            f"Jacobian {j.shape} and residual {b.shape} do not match: expected (2R, K) and (2R,)"
         )
     if w.shape == (j.shape[0] // 2,):
         w = np.repeat(w, 2)

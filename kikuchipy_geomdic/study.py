@@ -121,8 +121,6 @@ PC_SUCCESS = 1e-3
 _PC = ("pcx", "pcy", "pcz")
 
 
-
-
 def paper_geometry(
     navigation_shape: tuple[int, int] = (10, 10),
     shape: tuple[int, int] = (60, 60),
@@ -363,8 +361,6 @@ def sensitivities(
     return scale, coupling_matrix(np.stack(cols_, axis=1))
 
 
-
-
 def _misorientation(a: Rotation, b: Rotation) -> np.ndarray:
     """Rotation angle (deg) between rotations, no crystal symmetry: the
     refined orientations start at (or near) the truth and move
@@ -387,8 +383,6 @@ def _geometry_errors(refined: MapGeometry, truth: MapGeometry) -> dict[str, floa
         err[k] = float(getattr(refined, k) - getattr(truth, k))
     err["tilt_difference"] = err["tilt"] - err["sample_tilt"]
     return err
-
-
 
 
 _STUDY_COLUMNS = (
@@ -484,7 +478,9 @@ def write_table(table: np.ndarray, path) -> None:
     atomic_write_text(path, csv_text(table.dtype.names, table.tolist(), digits=8))
 
 
-def format_table(rows: Sequence[Mapping[str, Any]] | np.ndarray, columns=None, floatfmt="{:.4g}") -> str:
+def format_table(
+    rows: Sequence[Mapping[str, Any]] | np.ndarray, columns=None, floatfmt="{:.4g}"
+) -> str:
     """Return rows (dicts or a structured array) as a Markdown table.
 
     Parameters
@@ -527,8 +523,6 @@ def format_table(rows: Sequence[Mapping[str, Any]] | np.ndarray, columns=None, f
     for r in rows:
         lines.append("| " + " | ".join(fmt(r.get(c, "")) for c in columns) + " |")
     return "\n".join(lines)
-
-
 
 
 @dataclass
@@ -662,7 +656,9 @@ def summarise(
     )
     for lim in limits:
         below = d0 < lim
-        out[f"success_below_{100 * lim:g}%"] = f"{int(t['success'][below].sum())}/{int(below.sum())}"
+        out[f"success_below_{100 * lim:g}%"] = (
+            f"{int(t['success'][below].sum())}/{int(below.sum())}"
+        )
     ok = t["success"]
     if ok.any():
         pc = np.abs(np.stack([t[f"err_{k}"][ok] for k in _PC]))
@@ -678,8 +674,6 @@ def summarise(
     return out
 
 
-
-
 def _run_spec(spec: dict) -> dict:
     """One run of the study (module level so that Dask can pickle it)."""
     import dask
@@ -692,7 +686,10 @@ def _run_spec(spec: dict) -> dict:
     delta = {spec["param1"]: spec["delta1"]}
     delta[spec["param2"]] = delta.get(spec["param2"], 0.0) + spec["delta2"]
     truth = base.updated(delta)
-    row = {k: spec[k] for k in ("material", "param1", "param2", "level1", "level2", "delta1", "delta2")}
+    row = {
+        k: spec[k]
+        for k in ("material", "param1", "param2", "level1", "level2", "delta1", "delta2")
+    }
     ctx = (
         dask.config.set(scheduler=spec["inner_scheduler"])
         if spec.get("inner_scheduler")
@@ -717,8 +714,13 @@ def _run_spec(spec: dict) -> dict:
         row["initial_displacement"] = mean_displacement(sm.start_geometry, truth, pts)
         idx0 = flat_index(pts, base.navigation_shape)
         row["initial_displacement_eq2"] = eq2_displacement(
-            sm.master_pattern, sm.xmap.rotations[idx0], sm.start_geometry, truth, pts,
-            sm.energy, tuple(spec["refine_kwargs"].get("rois", (8, 8))),
+            sm.master_pattern,
+            sm.xmap.rotations[idx0],
+            sm.start_geometry,
+            truth,
+            pts,
+            sm.energy,
+            tuple(spec["refine_kwargs"].get("rois", (8, 8))),
         )[0]
         kwargs = dict(spec["refine_kwargs"])
         if sm.start == "centred":
@@ -730,7 +732,9 @@ def _run_spec(spec: dict) -> dict:
                 parameters=spec["parameters"], points=pts, show_progressbar=False, **kwargs
             )
         except Exception as exc:  # A failed run is a result, not a crash
-            row.update(error=repr(exc), success=False, success_ncc=False, time=time.perf_counter() - t0)
+            row.update(
+                error=repr(exc), success=False, success_ncc=False, time=time.perf_counter() - t0
+            )
             return row
     idx = flat_index(res.points, sm.geometry.navigation_shape)
     mis = _misorientation(res.xmap.rotations, sm.xmap.rotations[idx])
@@ -768,8 +772,6 @@ def _run_spec(spec: dict) -> dict:
             flush=True,
         )
     return row
-
-
 
 
 def perturbation_study(
@@ -920,20 +922,38 @@ def perturbation_study(
     parallel = n_workers > 1
     # What every run shares, and what the study's settings record
     common = dict(
-        material=material, orientations=orientations, parameters=tuple(parameters),
-        refine_kwargs=rkw, orientation_error=orientation_error, start=start, dose=dose,
-        blur=blur, seed=seed,
+        material=material,
+        orientations=orientations,
+        parameters=tuple(parameters),
+        refine_kwargs=rkw,
+        orientation_error=orientation_error,
+        start=start,
+        dose=dose,
+        blur=blur,
+        seed=seed,
     )
     run = dict(
-        common, master_pattern=master_pattern, base_geometry=base_geometry, scatter=scatter,
-        points=pts, scale=scale, ncc_success=ncc_success,
-        misorientation_success=misorientation_success, pc_success=pc_success,
-        inner_scheduler="synchronous" if parallel else None, verbose=verbose,
+        common,
+        master_pattern=master_pattern,
+        base_geometry=base_geometry,
+        scatter=scatter,
+        points=pts,
+        scale=scale,
+        ncc_success=ncc_success,
+        misorientation_success=misorientation_success,
+        pc_success=pc_success,
+        inner_scheduler="synchronous" if parallel else None,
+        verbose=verbose,
     )
     specs = [
         dict(
-            run, param1=p1, param2=p2, level1=float(l1), level2=float(l2),
-            delta1=float(l1) * d[p1], delta2=float(l2) * d[p2],
+            run,
+            param1=p1,
+            param2=p2,
+            level1=float(l1),
+            level2=float(l2),
+            delta1=float(l1) * d[p1],
+            delta2=float(l2) * d[p2],
         )
         for p1, p2 in pairs
         for l1 in levels
@@ -948,8 +968,14 @@ def perturbation_study(
         rows = [_run_spec(s) for s in specs]
     table = _to_table(rows, _STUDY_COLUMNS)
     settings = dict(
-        common, pairs=pairs, levels=list(levels), deltas=d, navigation_shape=nav,
-        shape=tuple(shape), n_points=len(pts), n_workers=n_workers,
+        common,
+        pairs=pairs,
+        levels=list(levels),
+        deltas=d,
+        navigation_shape=nav,
+        shape=tuple(shape),
+        n_points=len(pts),
+        n_workers=n_workers,
         errors=[r["error"] for r in rows if "error" in r],
     )
     return PerturbationStudy(

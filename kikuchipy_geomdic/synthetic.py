@@ -38,6 +38,7 @@ Data and credits
   kikuchipy), read offline from the kikuchipy installation, not copied
   into this package.
 """
+
 from __future__ import annotations
 
 import functools
@@ -188,8 +189,7 @@ def master_pattern(
     if isinstance(phase_or_name, Phase):
         if kind in ("dynamical", "emsoft"):
             raise ValueError(
-                "Dynamical master patterns exist only for 'Si', 'BaTiO3' and 'Ni' "
-                "(EMsoft: 'Ni')"
+                "Dynamical master patterns exist only for 'Si', 'BaTiO3' and 'Ni' (EMsoft: 'Ni')"
             )
         return _kinematical(phase_or_name, energy, half_size, min_dspacing).deepcopy()
     key = _phase_key(phase_or_name)
@@ -245,9 +245,7 @@ def _random_rotations(n: int, rng: np.random.Generator) -> Rotation:
     return Rotation(q)
 
 
-def perturb_rotations(
-    rotations: Rotation, scatter: float, rng, centred: bool = True
-) -> Rotation:
+def perturb_rotations(rotations: Rotation, scatter: float, rng, centred: bool = True) -> Rotation:
     """Return rotations times small random rotations.
 
     Parameters
@@ -297,18 +295,11 @@ def perturb_rotations(
 
 
 class CommonRotation(NamedTuple):
-    """Mean deviation of starting orientations from the truth.
+    """Mean deviation of starting orientations from the truth."""
 
-    Attributes
-    ----------
-    angle
-        Angle in degrees of the mean rotation vector.
-    axis
-        Unit axis (3,) in the sample frame; ``[0, 0, 1]`` when *angle*
-        is 0.
-    """
-
+    #: Angle in degrees of the mean rotation vector.
     angle: float
+    #: Unit axis (3,) in the sample frame; ``[0, 0, 1]`` when *angle* is 0.
     axis: np.ndarray
 
     @property
@@ -504,7 +495,11 @@ class SyntheticMap:
         from kikuchipy_geomdic.refinement import refine_geometry_dic
 
         return refine_geometry_dic(
-            self.signal, self.start_xmap, self.start_detector, self.master_pattern, self.energy,
+            self.signal,
+            self.start_xmap,
+            self.start_detector,
+            self.master_pattern,
+            self.energy,
             **kwargs,
         )
 
@@ -795,9 +790,7 @@ def _simulate_map(master_pattern, quats, pcs, geometry, energy, degrade) -> da.A
     )
 
 
-def _simulate_block(
-    q, p, master_pattern, template, energy, degrade, nav_cols, block_info=None
-):
+def _simulate_block(q, p, master_pattern, template, energy, degrade, nav_cols, block_info=None):
     shape = q.shape[:2]
     det = copy_detector(template, pc=p.reshape(-1, 3))
     patterns = simulate_patterns(master_pattern, Rotation(q.reshape(-1, 4)), det, energy)
@@ -847,9 +840,7 @@ def degrade_patterns(
         index = np.arange(n)
     if background:
         y, x = np.mgrid[0:nr, 0:nc]
-        g = np.exp(
-            -(((x - 0.45 * nc) / (0.6 * nc)) ** 2 + ((y - 0.35 * nr) / (0.6 * nr)) ** 2)
-        )
+        g = np.exp(-(((x - 0.45 * nc) / (0.6 * nc)) ** 2 + ((y - 0.35 * nr) / (0.6 * nr)) ** 2))
         out *= (1 + background * g).astype(np.float32)
     if blur:
         out = ndimage.gaussian_filter(out, sigma=(0, blur, blur)).astype(np.float32)

@@ -298,9 +298,10 @@ def test_demo_still_runs(tmp_path, capsys):
     # The printed values, not just a header: the PC is recovered
     import re
 
-    start, after = map(float, re.search(
-        r"Largest PC error on the map: (\S+) at the start, (\S+) after", out
-    ).groups())
+    start, after = map(
+        float,
+        re.search(r"Largest PC error on the map: (\S+) at the start, (\S+) after", out).groups(),
+    )
     assert after < start / 10 and after < 2e-3, out
     pcx = re.search(r"^pcx +(\S+) +(\S+) +(\S+) +(\S+) +(\S+)", out, re.M).groups()
     assert abs(float(pcx[4])) <= 3 * float(pcx[2]) + 1e-4, out
@@ -846,13 +847,23 @@ def _stop_at_refinement(monkeypatch):
 
 
 def _warnings(err):
-    return [li[len(WARNING):] for li in err.splitlines() if li.startswith(WARNING)]
+    return [li[len(WARNING) :] for li in err.splitlines() if li.startswith(WARNING)]
 
 
 def _refine_files(patterns, orientations, out, *extra):
     return [
-        "refine", patterns, "--orientations", orientations, "--master-pattern", "Si",
-        "--energy", "20", *FAST, "--out", out, *extra,
+        "refine",
+        patterns,
+        "--orientations",
+        orientations,
+        "--master-pattern",
+        "Si",
+        "--energy",
+        "20",
+        *FAST,
+        "--out",
+        out,
+        *extra,
     ]
 
 
@@ -864,14 +875,19 @@ def line_files(data, tmp_path_factory):
     b = tmp_path_factory.mktemp("line")
     n = NAV[1]
     write_emsoft_ebsd(
-        b / "line_emsoft.h5", np.asarray(sm.signal.data[0]), sm.start_xmap.rotations[:n],
-        sm.start_detector, sm.master_pattern.phase,
+        b / "line_emsoft.h5",
+        np.asarray(sm.signal.data[0]),
+        sm.start_xmap.rotations[:n],
+        sm.start_detector,
+        sm.master_pattern.phase,
     )
     dx = sm.geometry.step_sizes[1]
     for unit, step in (("um", dx), ("px", 1.0)):
         xm = CrystalMap(
-            rotations=sm.start_xmap.rotations[:n], x=np.arange(n) * step,
-            phase_list=sm.start_xmap.phases, scan_unit=unit,
+            rotations=sm.start_xmap.rotations[:n],
+            x=np.arange(n) * step,
+            phase_list=sm.start_xmap.phases,
+            scan_unit=unit,
         )
         orix_io.save(str(b / f"line_{unit}.h5"), xm)
     return b, dx
@@ -909,8 +925,11 @@ def test_step_sizes_differ_warning(tmp_path, data, monkeypatch, capsys):
     d, sm = data
     dy, dx = sm.geometry.step_sizes
     xm = CrystalMap(
-        rotations=sm.start_xmap.rotations, x=sm.start_xmap.x / 2.5, y=sm.start_xmap.y / 2.5,
-        phase_list=sm.start_xmap.phases, scan_unit="um",
+        rotations=sm.start_xmap.rotations,
+        x=sm.start_xmap.x / 2.5,
+        y=sm.start_xmap.y / 2.5,
+        phase_list=sm.start_xmap.phases,
+        scan_unit="um",
     )
     orix_io.save(str(tmp_path / "other_steps.h5"), xm)
     seen = _stop_at_refinement(monkeypatch)
@@ -954,8 +973,7 @@ def test_step_sizes_not_micrometres_warning(tmp_path, line_files, monkeypatch, c
     )
     assert code == 130, err
     assert _warnings(err) == [
-        "step sizes are in ['px'], not micrometres: the PC field over the map assumes "
-        "micrometres"
+        "step sizes are in ['px'], not micrometres: the PC field over the map assumes micrometres"
     ]
     (ax,) = seen["signal"].axes_manager.navigation_axes
     assert (ax.scale, ax.units) == (1.0, "px")

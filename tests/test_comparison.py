@@ -21,8 +21,16 @@ def test_compare_methods(si_mp):
     by = {r["method"]: r for r in rows}
     assert list(by) == ["dic", "nelder-mead", "differential-evolution"]
     for r in rows:
-        for key in ("time", "time_per_point", "time_at_n", "max_pc_error",
-                    "misorientation", "disorientation", "ncc", "err_tilt_difference"):
+        for key in (
+            "time",
+            "time_per_point",
+            "time_at_n",
+            "max_pc_error",
+            "misorientation",
+            "disorientation",
+            "ncc",
+            "err_tilt_difference",
+        ):
             assert np.isfinite(r[key]), (r["method"], key)
     assert by["differential-evolution"]["n_points"] == 2
     assert by["differential-evolution"]["extrapolated"]

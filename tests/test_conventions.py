@@ -81,7 +81,11 @@ def test_pc_in_convention_matches_kikuchipy_examples(convention, expected):
 
 def test_convention_names():
     assert [cv.convention_name(n) for n in ("Bruker", "EDAX", "amatek", "AZtec", "emsoft")] == [
-        "bruker", "tsl", "tsl", "oxford", "emsoft5"
+        "bruker",
+        "tsl",
+        "tsl",
+        "oxford",
+        "emsoft5",
     ]
     with pytest.raises(ValueError, match="Unknown PC convention"):
         cv.convention_name("hough")
@@ -137,9 +141,7 @@ def test_record_round_trip_through_json(geometry, convention):
 
 
 @pytest.mark.parametrize("convention", cv.CONVENTIONS)
-def test_patterns_from_reimported_detector_equal_originals(
-    tmp_path, si_mp, geometry, convention
-):
+def test_patterns_from_reimported_detector_equal_originals(tmp_path, si_mp, geometry, convention):
     det = geometry.detector()
     rot = _rotations(det.navigation_size)
     before = simulation.simulate_patterns(si_mp, rot, det, 20)
@@ -172,32 +174,59 @@ def _as_kikuchipy_reader_would(conv, f, rec):
     emsoft_ebsd _api.py)."""
     shape = tuple(rec["shape"])
     if conv == "bruker":
-        return EBSDDetector(shape, px_size=rec["px_size"], binning=rec["binning"],
-                            tilt=f["CameraTilt"], sample_tilt=f["Sample Tilt"],
-                            pc=(f["PCX"], f["PCY"], f["DD"]))
+        return EBSDDetector(
+            shape,
+            px_size=rec["px_size"],
+            binning=rec["binning"],
+            tilt=f["CameraTilt"],
+            sample_tilt=f["Sample Tilt"],
+            pc=(f["PCX"], f["PCY"], f["DD"]),
+        )
     if conv == "tsl":
-        return EBSDDetector(shape, px_size=rec["px_size"], binning=rec["binning"],
-                            tilt=f["Camera Elevation Angle"],
-                            azimuthal=f["Camera Azimuthal Angle"],
-                            sample_tilt=f["Sample Tilt"],
-                            pc=(f["x-star"], f["y-star"], f["z-star"]), convention="edax")
+        return EBSDDetector(
+            shape,
+            px_size=rec["px_size"],
+            binning=rec["binning"],
+            tilt=f["Camera Elevation Angle"],
+            azimuthal=f["Camera Azimuthal Angle"],
+            sample_tilt=f["Sample Tilt"],
+            pc=(f["x-star"], f["y-star"], f["z-star"]),
+            convention="edax",
+        )
     if conv == "oxford":
-        return EBSDDetector(shape, px_size=rec["px_size"], binning=rec["binning"],
-                            pc=(f["Pattern Center X"], f["Pattern Center Y"],
-                                f["Detector Distance"]),
-                            sample_tilt=np.rad2deg(f["Tilt Angle (rad)"]),
-                            tilt=np.rad2deg(f["Detector Orientation Euler Phi (rad)"]) - 90,
-                            convention="oxford")
-    return EBSDDetector((f["numsy"], f["numsx"]), px_size=f["delta"], binning=f["binning"],
-                        tilt=f["thetac"], pc=(f["xpc"], f["ypc"], f["L"]),
-                        sample_tilt=rec["sample_tilt"], convention=conv)
+        return EBSDDetector(
+            shape,
+            px_size=rec["px_size"],
+            binning=rec["binning"],
+            pc=(f["Pattern Center X"], f["Pattern Center Y"], f["Detector Distance"]),
+            sample_tilt=np.rad2deg(f["Tilt Angle (rad)"]),
+            tilt=np.rad2deg(f["Detector Orientation Euler Phi (rad)"]) - 90,
+            convention="oxford",
+        )
+    return EBSDDetector(
+        (f["numsy"], f["numsx"]),
+        px_size=f["delta"],
+        binning=f["binning"],
+        tilt=f["thetac"],
+        pc=(f["xpc"], f["ypc"], f["L"]),
+        sample_tilt=rec["sample_tilt"],
+        convention=conv,
+    )
 
 
 @pytest.mark.parametrize("convention", cv.CONVENTIONS)
 def test_vendor_fields_read_back_by_kikuchipy_readers(convention):
-    geo = MapGeometry(pc=(0.49, 0.31, 0.58), shape=(60, 80), px_size=59.2, binning=8,
-                      step_sizes=(1, 1), navigation_shape=(1, 1), tilt=4.5,
-                      azimuthal=0.0, sample_tilt=70.2)
+    geo = MapGeometry(
+        pc=(0.49, 0.31, 0.58),
+        shape=(60, 80),
+        px_size=59.2,
+        binning=8,
+        step_sizes=(1, 1),
+        navigation_shape=(1, 1),
+        tilt=4.5,
+        azimuthal=0.0,
+        sample_tilt=70.2,
+    )
     rec = cv.export_geometry(geo, convention)
     # kikuchipy's EMsoft pattern reader takes no sample tilt
     assert rec["not_in_vendor_fields"] == (["sample_tilt"] if "emsoft" in convention else [])
@@ -250,8 +279,15 @@ def test_old_kikuchipy_detector_file_flips_azimuthal(tmp_path, geometry):
 def result(si_mp):
     sm = synthetic.synthetic_map(si_mp, (3, 4), shape=(60, 60), seed=2)
     res = refine_geometry_dic(
-        sm.signal, sm.start_xmap, sm.start_detector, sm.master_pattern, sm.energy,
-        points=12, rois=(6, 6), max_iterations=1, show_progressbar=False,
+        sm.signal,
+        sm.start_xmap,
+        sm.start_detector,
+        sm.master_pattern,
+        sm.energy,
+        points=12,
+        rois=(6, 6),
+        max_iterations=1,
+        show_progressbar=False,
     )
     return res
 

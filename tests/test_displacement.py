@@ -60,7 +60,11 @@ NOISE_A = 0.05
 def _detector(pc, angles):
     tilt, azimuthal, sample_tilt, twist = angles
     return EBSDDetector(
-        shape=SHAPE, pc=pc, tilt=tilt, azimuthal=azimuthal, sample_tilt=sample_tilt,
+        shape=SHAPE,
+        pc=pc,
+        tilt=tilt,
+        azimuthal=azimuthal,
+        sample_tilt=sample_tilt,
         twist=twist,
     )
 
@@ -145,9 +149,13 @@ def test_roi_grid_partitions_pixels(shape, rois):
     expected = np.zeros(shape, int)
     for r in range(rois[0]):
         for c in range(rois[1]):
-            expected[row_edges[r]:row_edges[r + 1], col_edges[c]:col_edges[c + 1]] = r * rois[1] + c
+            expected[row_edges[r] : row_edges[r + 1], col_edges[c] : col_edges[c + 1]] = (
+                r * rois[1] + c
+            )
     assert_array_equal(idx, expected)
-    assert_array_equal(np.bincount(idx.ravel()), np.outer(np.diff(row_edges), np.diff(col_edges)).ravel())
+    assert_array_equal(
+        np.bincount(idx.ravel()), np.outer(np.diff(row_edges), np.diff(col_edges)).ravel()
+    )
     # Centres are the mean pixel coordinate of each ROI
     centres = dsp.roi_centres(shape, rois)
     for r in range(rois[0] * rois[1]):
@@ -198,8 +206,7 @@ def test_roi_weights_eq8_by_hand():
 
 def test_field_averages_over_n_eq2_and_orders_b_eq3():
     u = np.array(
-        [[[1.0, 2.0], [3.0, 4.0]],
-         [[5.0, 6.0], [0.0, 0.0]]]  # ROI 1 has no vector in pattern 1
+        [[[1.0, 2.0], [3.0, 4.0]], [[5.0, 6.0], [0.0, 0.0]]]  # ROI 1 has no vector in pattern 1
     )
     counts = np.array([[2, 1], [3, 0]])
     field = dsp.DisplacementField(u, counts, np.zeros_like(u), (10, 20), (1, 2), "opencv")
@@ -330,8 +337,14 @@ def test_paper_mode_without_extra_outlier_tests(patterns, measured):
     a, b = patterns
     case = "combined"
     paper = dsp.measure_displacements(
-        a, _experimental(b[case], seed=2), noise=NOISE_A, blur=PSF, forward_backward=None,
-        robust=None, seed=0, keep_vectors=True,
+        a,
+        _experimental(b[case], seed=2),
+        noise=NOISE_A,
+        blur=PSF,
+        forward_backward=None,
+        robust=None,
+        seed=0,
+        keep_vectors=True,
     )
     full = measured(case, "opencv", noisy=True)
     # The extra tests only remove vectors

@@ -43,9 +43,7 @@ ANGLE_NAMES = ("tilt", "azimuthal", "sample_tilt", "twist")
 
 def kp_matrix(tilt, azimuthal, sample_tilt, twist=0.0):
     """kikuchipy's sample-to-detector matrix (M @ v_sample = v_detector)."""
-    det = EBSDDetector(
-        tilt=tilt, azimuthal=azimuthal, sample_tilt=sample_tilt, twist=twist
-    )
+    det = EBSDDetector(tilt=tilt, azimuthal=azimuthal, sample_tilt=sample_tilt, twist=twist)
     return det.sample_to_detector.to_matrix().reshape(3, 3)
 
 
@@ -68,9 +66,7 @@ def own_directions(x, y, shape, pc, angles):
     is the plane Z_d = 0 with pixel (j, i) centred at (i + 1/2, -(j + 1/2))
     and the source at (pcx Nx, -pcy Ny, -pcz Ny), in binned pixels."""
     nrows, ncols = shape
-    screen = np.stack(
-        np.broadcast_arrays(x + 0.5, -(np.asarray(y) + 0.5), 0.0), axis=-1
-    )
+    screen = np.stack(np.broadcast_arrays(x + 0.5, -(np.asarray(y) + 0.5), 0.0), axis=-1)
     source = np.array([pc[0] * ncols, -pc[1] * nrows, -pc[2] * nrows])
     v = (screen - source) @ kp_matrix(*angles)  # Detector -> sample: M.T v
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
@@ -121,12 +117,14 @@ def extrapolated(shape, px_size, binning, tilt, sample_tilt, pc, ref, nav, steps
     """kikuchipy's PC map; pc_indices flat [row, col] (the documented (2, n)
     form averages over the wrong axis for a single PC)."""
     det = EBSDDetector(
-        shape, px_size=px_size, binning=binning, tilt=tilt,
-        sample_tilt=sample_tilt, pc=pc,
+        shape,
+        px_size=px_size,
+        binning=binning,
+        tilt=tilt,
+        sample_tilt=sample_tilt,
+        pc=pc,
     )
-    new = det.extrapolate_pc(
-        pc_indices=[ref[0], ref[1]], navigation_shape=nav, step_sizes=steps
-    )
+    new = det.extrapolate_pc(pc_indices=[ref[0], ref[1]], navigation_shape=nav, step_sizes=steps)
     return new.pc
 
 
@@ -150,8 +148,17 @@ def test_pc_field_equals_extrapolate_pc(case):
     truth = extrapolated(shape, px, b, tilt, st, pc, ref, nav, steps)
     rows, cols = np.indices(nav)
     pcs = pc_field(
-        pc, rows, cols, reference=ref, step_sizes=steps, shape=shape,
-        px_size=px, binning=b, tilt=tilt, azimuthal=0.0, sample_tilt=st,
+        pc,
+        rows,
+        cols,
+        reference=ref,
+        step_sizes=steps,
+        shape=shape,
+        px_size=px,
+        binning=b,
+        tilt=tilt,
+        azimuthal=0.0,
+        sample_tilt=st,
     )
     assert pcs.shape == nav + (3,)
     assert_allclose(pcs, truth, rtol=0, atol=1e-9)
@@ -159,12 +166,20 @@ def test_pc_field_equals_extrapolate_pc(case):
     assert np.ptp(truth.reshape(-1, 3), axis=0).max() > 1e-4
 
     geo = MapGeometry(
-        pc=pc, shape=shape, px_size=px, binning=b, step_sizes=steps,
-        navigation_shape=nav, tilt=tilt, sample_tilt=st, reference=ref,
+        pc=pc,
+        shape=shape,
+        px_size=px,
+        binning=b,
+        step_sizes=steps,
+        navigation_shape=nav,
+        tilt=tilt,
+        sample_tilt=st,
+        reference=ref,
     )
     assert_allclose(geo.detector().pc, truth, rtol=0, atol=1e-9)
-    assert_allclose(geo.pc_at(np.c_[rows.ravel(), cols.ravel()]),
-                    truth.reshape(-1, 3), rtol=0, atol=1e-9)
+    assert_allclose(
+        geo.pc_at(np.c_[rows.ravel(), cols.ravel()]), truth.reshape(-1, 3), rtol=0, atol=1e-9
+    )
 
 
 def test_sample_frame_convention():
@@ -223,8 +238,15 @@ def test_pc_field_moved_source_fixed_screen(case):
 def test_pc_field_azimuthal_and_twist_matter():
     """With azimuthal = twist = 0 the field is extrapolate_pc's; with either
     non-zero it differs (so test 2 is not the azimuthal = 0 case again)."""
-    args = dict(reference=(0, 0), step_sizes=(30, 30), shape=(60, 60),
-                px_size=60, binning=2, tilt=0, sample_tilt=70)
+    args = dict(
+        reference=(0, 0),
+        step_sizes=(30, 30),
+        shape=(60, 60),
+        px_size=60,
+        binning=2,
+        tilt=0,
+        sample_tilt=70,
+    )
     base = pc_field((0.5, 0.3, 0.6), [3, 0], [0, 3], azimuthal=0, **args)
     for kw in ({"azimuthal": 3.0}, {"azimuthal": 0.0, "twist": 3.0}):
         other = pc_field((0.5, 0.3, 0.6), [3, 0], [0, 3], **kw, **args)
@@ -251,16 +273,18 @@ def mp():
 
 @pytest.fixture(scope="module")
 def rotations():
-    return Rotation.from_euler(
-        np.deg2rad([[10, 20, 30], [100, 40, 250], [200, 60, 120]])
-    )
+    return Rotation.from_euler(np.deg2rad([[10, 20, 30], [100, 40, 250], [200, 60, 120]]))
 
 
 def simulate(mp, rotations, shape, pc, angles):
     tilt, azimuthal, sample_tilt, twist = angles
     det = EBSDDetector(
-        shape, pc=pc, tilt=tilt, azimuthal=azimuthal,
-        sample_tilt=sample_tilt, twist=twist,
+        shape,
+        pc=pc,
+        tilt=tilt,
+        azimuthal=azimuthal,
+        sample_tilt=sample_tilt,
+        twist=twist,
     )
     return simulation.simulate_patterns(mp, rotations, det, energy=20)
 
@@ -284,12 +308,21 @@ def test_tilt_degeneracy_patterns(mp, rotations):
 def test_tilt_degeneracy_geometry():
     assert EQUIVALENT_PARAMETERS == {"sample_tilt": ("tilt", -1.0)}
     assert_allclose(
-        sample_to_detector_matrix(5, 2, 70, 1), sample_to_detector_matrix(0, 2, 65, 1),
-        rtol=0, atol=1e-15,
+        sample_to_detector_matrix(5, 2, 70, 1),
+        sample_to_detector_matrix(0, 2, 65, 1),
+        rtol=0,
+        atol=1e-15,
     )
     rows, cols = np.indices((4, 5))
-    args = dict(reference=(1, 1), step_sizes=(40, 30), shape=(60, 80),
-                px_size=50, binning=2, azimuthal=2.0, twist=1.0)
+    args = dict(
+        reference=(1, 1),
+        step_sizes=(40, 30),
+        shape=(60, 80),
+        px_size=50,
+        binning=2,
+        azimuthal=2.0,
+        twist=1.0,
+    )
     f1 = pc_field((0.5, 0.3, 0.6), rows, cols, tilt=5, sample_tilt=70, **args)
     f2 = pc_field((0.5, 0.3, 0.6), rows, cols, tilt=0, sample_tilt=65, **args)
     f3 = pc_field((0.5, 0.3, 0.6), rows, cols, tilt=0, sample_tilt=70, **args)
@@ -298,17 +331,29 @@ def test_tilt_degeneracy_geometry():
 
     # A change of sample_tilt by d does what a change of tilt by -d does
     name, (other, factor) = next(iter(EQUIVALENT_PARAMETERS.items()))
-    geo = MapGeometry(pc=(0.5, 0.3, 0.6), shape=(60, 80), px_size=50, binning=2,
-                      step_sizes=(40, 30), navigation_shape=(4, 5), tilt=3,
-                      azimuthal=2, sample_tilt=70, twist=1)
+    geo = MapGeometry(
+        pc=(0.5, 0.3, 0.6),
+        shape=(60, 80),
+        px_size=50,
+        binning=2,
+        step_sizes=(40, 30),
+        navigation_shape=(4, 5),
+        tilt=3,
+        azimuthal=2,
+        sample_tilt=70,
+        twist=1,
+    )
     d = 0.7
     g1, g2 = geo.updated({name: d}), geo.updated({other: factor * d})
     pts = np.c_[rows.ravel(), cols.ravel()]
     assert_allclose(g1.pc_at(pts), g2.pc_at(pts), rtol=0, atol=1e-12)
     x, y = np.meshgrid(np.arange(0, 80, 7.0), np.arange(0, 60, 7.0))
-    assert_allclose(geo.displacement(g1, pts, x.ravel(), y.ravel()),
-                    geo.displacement(g2, pts, x.ravel(), y.ravel()),
-                    rtol=0, atol=1e-9)
+    assert_allclose(
+        geo.displacement(g1, pts, x.ravel(), y.ravel()),
+        geo.displacement(g2, pts, x.ravel(), y.ravel()),
+        rtol=0,
+        atol=1e-9,
+    )
 
 
 # --------------------------------------------------------------------- #
@@ -329,16 +374,24 @@ def test_forward_map_preserves_kikuchipy_directions():
     pc_b, ang_b = (0.5, 0.27, 0.66), (1.0, -3.0, 71.0, 2.0)
     j, i = np.indices(shape, dtype=float)
     for pc, ang in ((pc_a, ang_a), (pc_b, ang_b)):
-        assert_allclose(own_directions(i, j, shape, pc, ang),
-                        kp_directions(shape, pc, *ang), rtol=0, atol=1e-12)
+        assert_allclose(
+            own_directions(i, j, shape, pc, ang),
+            kp_directions(shape, pc, *ang),
+            rtol=0,
+            atol=1e-12,
+        )
     # Pixel centres of A, and arbitrary fractional points
     rng = np.random.default_rng(0)
     x = np.concatenate([i.ravel(), rng.uniform(-5, 70, 200)])
     y = np.concatenate([j.ravel(), rng.uniform(-5, 50, 200)])
     xb, yb = forward_map(x, y, pc_a, ang_a, pc_b, ang_b, shape)
     assert np.all(np.isfinite(xb)) and np.all(np.isfinite(yb))
-    assert_allclose(own_directions(xb, yb, shape, pc_b, ang_b),
-                    own_directions(x, y, shape, pc_a, ang_a), rtol=0, atol=1e-9)
+    assert_allclose(
+        own_directions(xb, yb, shape, pc_b, ang_b),
+        own_directions(x, y, shape, pc_a, ang_a),
+        rtol=0,
+        atol=1e-9,
+    )
     # The round trip B -> A returns the start point
     xa, ya = forward_map(xb, yb, pc_b, ang_b, pc_a, ang_a, shape)
     assert_allclose(xa, x, atol=1e-9)
@@ -447,8 +500,7 @@ def test_forward_map_behind_source_is_nan():
     pc, ang = (0.5, 0.5, 0.5), (0.0, 0.0, 70.0, 0.0)
     # Corner pixel is ~55 deg off the screen normal: a 100 deg detector
     # tilt puts its direction behind the screen plane of B
-    xb, yb = forward_map([0.0, 30.0], [0.0, 30.0], pc, ang, pc,
-                         (100.0, 0.0, 70.0, 0.0), (60, 60))
+    xb, yb = forward_map([0.0, 30.0], [0.0, 30.0], pc, ang, pc, (100.0, 0.0, 70.0, 0.0), (60, 60))
     assert np.isnan(xb[0]) and np.isnan(yb[0])
     xb2, yb2 = forward_map(0.0, 0.0, pc, ang, pc, (10.0, 0.0, 70.0, 0.0), (60, 60))
     assert np.isfinite(xb2) and np.isfinite(yb2)
@@ -499,8 +551,7 @@ def track(a, b):
     with forward-backward error < 0.03 px, away from the borders."""
     lo, hi = min(a.min(), b.min()), max(a.max(), b.max())
     ia, ib = (np.round((p - lo) / (hi - lo) * 255).astype(np.uint8) for p in (a, b))
-    p0 = cv2.goodFeaturesToTrack(ia, maxCorners=300, qualityLevel=0.01,
-                                 minDistance=4, blockSize=7)
+    p0 = cv2.goodFeaturesToTrack(ia, maxCorners=300, qualityLevel=0.01, minDistance=4, blockSize=7)
     p1, st1, _ = cv2.calcOpticalFlowPyrLK(ia, ib, p0, None, **LK)
     p0b, st2, _ = cv2.calcOpticalFlowPyrLK(ib, ia, p1, None, **LK)
     p0, p1, p0b = (p.reshape(-1, 2).astype(np.float64) for p in (p0, p1, p0b))
@@ -529,8 +580,9 @@ def test_forward_map_matches_tracking(mp, rotations, track_a, name):
     diff, moved, wrong = [], [], []
     for pa, pb in zip(track_a, b):
         p0, p1 = track(pa, pb)
-        xb, yb = forward_map(p0[:, 0], p0[:, 1], TRACK_PC, _angles(TRACK_ANGLES),
-                             pc_b, _angles(ang_b), TRACK_SHAPE)
+        xb, yb = forward_map(
+            p0[:, 0], p0[:, 1], TRACK_PC, _angles(TRACK_ANGLES), pc_b, _angles(ang_b), TRACK_SHAPE
+        )
         pred = np.c_[xb, yb]
         diff.append(pred - p1)
         moved.append(p1 - p0)
@@ -555,9 +607,18 @@ def test_forward_map_matches_tracking(mp, rotations, track_a, name):
 
 @pytest.fixture
 def map_geometry():
-    return MapGeometry(pc=(0.5, 0.3, 0.6), shape=(60, 80), px_size=55.0, binning=2,
-                       step_sizes=(10, 10), navigation_shape=(3, 4), tilt=3.0,
-                       azimuthal=1.5, sample_tilt=69.0, twist=0.7)
+    return MapGeometry(
+        pc=(0.5, 0.3, 0.6),
+        shape=(60, 80),
+        px_size=55.0,
+        binning=2,
+        step_sizes=(10, 10),
+        navigation_shape=(3, 4),
+        tilt=3.0,
+        azimuthal=1.5,
+        sample_tilt=69.0,
+        twist=0.7,
+    )
 
 
 def test_updated(map_geometry):
@@ -609,10 +670,17 @@ def test_check_parameters():
     assert check_parameters("pcz") == ("pcz",)
     assert check_parameters(list(reversed(PARAMETERS))) == PARAMETERS
     assert check_parameters(("twist", "sample_tilt", "azimuthal")) == (
-        "azimuthal", "sample_tilt", "twist",
+        "azimuthal",
+        "sample_tilt",
+        "twist",
     )
     assert DEFAULT_PARAMETERS == (
-        "pcx", "pcy", "pcz", "tilt", "azimuthal", "sample_tilt",
+        "pcx",
+        "pcy",
+        "pcz",
+        "tilt",
+        "azimuthal",
+        "sample_tilt",
     )
     with pytest.raises(ValueError, match="Unknown geometry parameter"):
         check_parameters(["pcx", "PCx"])
@@ -630,9 +698,16 @@ def test_check_parameters():
 @pytest.fixture
 def geo():
     return MapGeometry(
-        pc=(0.49, 0.28, 0.61), shape=(60, 80), px_size=55.0, binning=2,
-        step_sizes=(30.0, 45.0), navigation_shape=(5, 7), tilt=3.0,
-        azimuthal=2.0, sample_tilt=69.0, twist=1.0,
+        pc=(0.49, 0.28, 0.61),
+        shape=(60, 80),
+        px_size=55.0,
+        binning=2,
+        step_sizes=(30.0, 45.0),
+        navigation_shape=(5, 7),
+        tilt=3.0,
+        azimuthal=2.0,
+        sample_tilt=69.0,
+        twist=1.0,
     )
 
 
@@ -640,25 +715,51 @@ def test_map_geometry_defaults(geo):
     assert geo.reference == (2.0, 3.0)
     assert geo.angles == (3.0, 2.0, 69.0, 1.0)
     assert geo.as_dict() == {
-        "pcx": 0.49, "pcy": 0.28, "pcz": 0.61, "tilt": 3.0,
-        "azimuthal": 2.0, "sample_tilt": 69.0, "twist": 1.0,
+        "pcx": 0.49,
+        "pcy": 0.28,
+        "pcz": 0.61,
+        "tilt": 3.0,
+        "azimuthal": 2.0,
+        "sample_tilt": 69.0,
+        "twist": 1.0,
     }
     assert_allclose(geo.values(["tilt", "pcx"]), [3.0, 0.49], rtol=0, atol=0)
     assert_allclose(geo.values(), [0.49, 0.28, 0.61, 3.0, 2.0, 69.0, 1.0])
     assert geo.values().dtype == np.float64
-    line = MapGeometry(pc=(0.5, 0.3, 0.6), shape=(60, 60), px_size=60, binning=1,
-                       step_sizes=(10, 10), navigation_shape=(9,))
+    line = MapGeometry(
+        pc=(0.5, 0.3, 0.6),
+        shape=(60, 60),
+        px_size=60,
+        binning=1,
+        step_sizes=(10, 10),
+        navigation_shape=(9,),
+    )
     assert line.navigation_shape == (1, 9)
     assert line.reference == (0.0, 4.0)
     with pytest.raises(ValueError, match="2D"):
-        MapGeometry(pc=(0.5, 0.3, 0.6), shape=(60, 60), px_size=60, binning=1,
-                    step_sizes=(10, 10), navigation_shape=(2, 3, 4))
+        MapGeometry(
+            pc=(0.5, 0.3, 0.6),
+            shape=(60, 60),
+            px_size=60,
+            binning=1,
+            step_sizes=(10, 10),
+            navigation_shape=(2, 3, 4),
+        )
 
 
 def test_map_geometry_pc_field(geo):
     pts = np.array([[0, 0], [2, 3], [4, 6], [1.5, -2.0]])
-    want = pc_field(geo.pc, pts[:, 0], pts[:, 1], geo.reference, geo.step_sizes,
-                    geo.shape, geo.px_size, geo.binning, *geo.angles)
+    want = pc_field(
+        geo.pc,
+        pts[:, 0],
+        pts[:, 1],
+        geo.reference,
+        geo.step_sizes,
+        geo.shape,
+        geo.px_size,
+        geo.binning,
+        *geo.angles,
+    )
     assert_allclose(geo.pc_at(pts), want, rtol=0, atol=0)
     assert_allclose(geo.pc_at([2, 3]), [geo.pc], rtol=0, atol=1e-15)
     det = geo.detector(pts)
@@ -680,8 +781,9 @@ def test_map_geometry_frozen(geo):
 
 def test_map_geometry_updated(geo):
     new = geo.updated({"pcy": -0.01, "azimuthal": 0.5, "sample_tilt": -1.0})
-    assert_allclose(new.values() - geo.values(), [0, -0.01, 0, 0, 0.5, -1.0, 0],
-                    rtol=0, atol=1e-15)
+    assert_allclose(
+        new.values() - geo.values(), [0, -0.01, 0, 0, 0.5, -1.0, 0], rtol=0, atol=1e-15
+    )
     assert new.reference == geo.reference and new.step_sizes == geo.step_sizes
     assert geo.pc == (0.49, 0.28, 0.61) and geo.azimuthal == 2.0  # Unchanged
     with pytest.raises(ValueError, match="Unknown geometry parameter"):
@@ -706,8 +808,15 @@ def test_map_geometry_round_trip_pc_map(geo, reference):
 
 
 def test_map_geometry_round_trip_line():
-    g = MapGeometry(pc=(0.5, 0.3, 0.6), shape=(60, 60), px_size=60, binning=4,
-                    step_sizes=(10, 25), navigation_shape=(9,), azimuthal=3.0)
+    g = MapGeometry(
+        pc=(0.5, 0.3, 0.6),
+        shape=(60, 60),
+        px_size=60,
+        binning=4,
+        step_sizes=(10, 25),
+        navigation_shape=(9,),
+        azimuthal=3.0,
+    )
     det = g.detector()
     assert det.navigation_shape == (9,)
     back = MapGeometry.from_detector(det, g.step_sizes, (9,))
@@ -717,19 +826,27 @@ def test_map_geometry_round_trip_line():
 
 
 def test_map_geometry_from_single_pc_detector():
-    det = EBSDDetector((60, 80), px_size=55.0, binning=4, tilt=2.0, azimuthal=-1.0,
-                       sample_tilt=70.0, twist=0.4, pc=(0.51, 0.29, 0.58))
+    det = EBSDDetector(
+        (60, 80),
+        px_size=55.0,
+        binning=4,
+        tilt=2.0,
+        azimuthal=-1.0,
+        sample_tilt=70.0,
+        twist=0.4,
+        pc=(0.51, 0.29, 0.58),
+    )
     g = MapGeometry.from_detector(det, (20.0, 20.0), (4, 6))
     assert g.reference == (1.5, 2.5)
-    assert_allclose(g.values(), [0.51, 0.29, 0.58, 2.0, -1.0, 70.0, 0.4],
-                    rtol=0, atol=1e-12)
+    assert_allclose(g.values(), [0.51, 0.29, 0.58, 2.0, -1.0, 70.0, 0.4], rtol=0, atol=1e-12)
     assert g.shape == (60, 80) and g.px_size == 55.0 and g.binning == 4
     g2 = MapGeometry.from_detector(det, (20.0, 20.0), (4, 6), reference=(0, 5))
     assert g2.reference == (0.0, 5.0)
     assert_allclose(g2.pc_at([0, 5]), [[0.51, 0.29, 0.58]], rtol=0, atol=1e-12)
     # geometry -> detector -> geometry, with one PC at the reference
-    again = MapGeometry.from_detector(g2.detector([g2.reference]), (20.0, 20.0),
-                                      (4, 6), reference=g2.reference)
+    again = MapGeometry.from_detector(
+        g2.detector([g2.reference]), (20.0, 20.0), (4, 6), reference=g2.reference
+    )
     assert_allclose(again.values(), g2.values(), rtol=0, atol=1e-12)
 
 
@@ -740,8 +857,9 @@ def test_map_geometry_wrong_pc_count():
 
 
 def test_map_geometry_displacement(geo):
-    other = geo.updated({"pcx": 0.004, "pcz": -0.003, "tilt": 0.6,
-                         "azimuthal": -0.4, "twist": 0.3})
+    other = geo.updated(
+        {"pcx": 0.004, "pcz": -0.003, "tilt": 0.6, "azimuthal": -0.4, "twist": 0.3}
+    )
     pts = np.array([[0, 0], [2, 3], [4, 6]])
     x = np.array([5.0, 40.0, 70.0, 12.5])
     y = np.array([3.0, 30.0, 50.0, 44.0])
@@ -768,7 +886,9 @@ def test_map_geometry_from_pc_map_with_nan(geo):
     det.pc = pc
     back = MapGeometry.from_detector(det, geo.step_sizes, geo.navigation_shape)
     expected = geo.pc_at(np.argwhere(np.ones(geo.navigation_shape)))
-    assert np.allclose(back.pc_at(np.argwhere(np.ones(geo.navigation_shape))), expected, atol=1e-12)
+    assert np.allclose(
+        back.pc_at(np.argwhere(np.ones(geo.navigation_shape))), expected, atol=1e-12
+    )
     det.pc = np.full_like(pc, np.nan)
     with pytest.raises(ValueError, match="all NaN"):
         MapGeometry.from_detector(det, geo.step_sizes, geo.navigation_shape)

@@ -76,8 +76,14 @@ def test_refine_line_scan(line, two_d):
     sm, data, xmap, det, true_pc = line
     s = _signal(data, sm.geometry.step_sizes[1], two_d)
     res = kg.refine_geometry_dic(
-        s, xmap, det, sm.master_pattern, sm.energy, parameters=["pcx", "pcy", "pcz"],
-        points=N, show_progressbar=False,
+        s,
+        xmap,
+        det,
+        sm.master_pattern,
+        sm.energy,
+        parameters=["pcx", "pcy", "pcz"],
+        points=N,
+        show_progressbar=False,
     )
     assert res.points.tolist() == [[0, c] for c in range(N)]
     assert res.geometry.navigation_shape == (1, N)

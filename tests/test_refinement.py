@@ -72,9 +72,15 @@ def indexed(si_mp):
     # A user's start: PC 1.35e-2 off in all, angles 0.3-0.5 deg off,
     # orientations indexed at that geometry; shot noise of 300 counts
     return synthetic.synthetic_map(
-        si_mp, (11, 11), orientations="random", shape=(96, 96), seed=3, dose=300,
+        si_mp,
+        (11, 11),
+        orientations="random",
+        shape=(96, 96),
+        seed=3,
+        dose=300,
         perturbation={"pcx": 0.01, "pcy": -0.008, "pcz": 0.0045, "tilt": 0.4, "azimuthal": -0.5},
-        orientation_error=1.0, start="indexed",
+        orientation_error=1.0,
+        start="indexed",
     )
 
 
@@ -96,7 +102,11 @@ def test_indexed_start_pc_and_honest_errors(indexed, indexed_result):
     got["tilt-sample_tilt"] = got["tilt"] - got["sample_tilt"]
     for name, sigma in res.standard_errors.items():
         if np.isfinite(sigma):
-            assert abs(got[name] - truth[name]) <= 3 * sigma, (name, got[name] - truth[name], sigma)
+            assert abs(got[name] - truth[name]) <= 3 * sigma, (
+                name,
+                got[name] - truth[name],
+                sigma,
+            )
     # Angles this map cannot determine are not moved by noise
     for name in ("azimuthal", "tilt-sample_tilt"):
         sigma = res.standard_errors[name]
@@ -133,8 +143,14 @@ def test_small_map_does_not_walk_weak_angles(si_mp):
     # those correlations in the standard errors, the azimuthal angle went
     # from 0.75 to 3.2 deg off "at 3.2 standard errors"
     sm = synthetic.synthetic_map(
-        si_mp, (4, 4), orientations="random", shape=(60, 60), dose=300,
-        orientation_error=1.0, start="indexed", seed=0,
+        si_mp,
+        (4, 4),
+        orientations="random",
+        shape=(60, 60),
+        dose=300,
+        orientation_error=1.0,
+        start="indexed",
+        seed=0,
     )
     res = _refine(sm, points=16)
     truth, start = sm.geometry.as_dict(), sm.start_geometry.as_dict()
@@ -149,8 +165,14 @@ def test_uncentred_random_start_ten_patterns(si_mp):
     # Ten random orientations, 1 deg random start errors (not centred),
     # 120 px patterns with shot noise of 1000 counts
     sm = synthetic.synthetic_map(
-        si_mp, (2, 5), shape=(120, 120), seed=7, dose=1000, orientation_error=1.0,
-        start="uncentred", perturbation={"pcx": 0.008, "pcy": -0.006, "pcz": 0.01},
+        si_mp,
+        (2, 5),
+        shape=(120, 120),
+        seed=7,
+        dose=1000,
+        orientation_error=1.0,
+        start="uncentred",
+        perturbation={"pcx": 0.008, "pcy": -0.006, "pcz": 0.01},
     )
     res = _refine(sm, points=10, parameters=["pcx", "pcy", "pcz"])
     assert _max_pc_error(res, sm) <= 3e-4
@@ -161,22 +183,31 @@ def test_simulator_mismatch(si_mp):
     # calibrated with the ebsdsim one
     emsoft = synthetic.master_pattern("Ni", kind="emsoft")
     sm = synthetic.synthetic_map(
-        emsoft, (6, 6), shape=(96, 96), seed=2, dose=300, orientation_error=1.0,
-        start="uncentred", perturbation={"pcx": 0.01, "pcy": -0.008, "pcz": 0.008},
+        emsoft,
+        (6, 6),
+        shape=(96, 96),
+        seed=2,
+        dose=300,
+        orientation_error=1.0,
+        start="uncentred",
+        perturbation={"pcx": 0.01, "pcy": -0.008, "pcz": 0.008},
     )
     mp = synthetic.master_pattern("Ni")
     res = sm.signal.refine_geometry_dic(
-        sm.start_xmap, sm.start_detector, mp, 20, points=36,
-        parameters=["pcx", "pcy", "pcz"], show_progressbar=False,
+        sm.start_xmap,
+        sm.start_detector,
+        mp,
+        20,
+        points=36,
+        parameters=["pcx", "pcy", "pcz"],
+        show_progressbar=False,
     )
     assert _max_pc_error(res, sm) <= 3e-4
 
 
 @pytest.mark.parametrize("orientations", ["random", "single"])
 def test_all_six_parameters(si_mp, poly_result, orientations):
-    sm = synthetic.synthetic_map(
-        si_mp, (7, 7), orientations=orientations, shape=(60, 60), seed=0
-    )
+    sm = synthetic.synthetic_map(si_mp, (7, 7), orientations=orientations, shape=(60, 60), seed=0)
     res = poly_result if orientations == "random" else _refine(sm)
     assert 0.01 <= res.history[0]["displacement_before"] <= 0.03
     err, mis = _errors(res, sm)
@@ -189,7 +220,9 @@ def test_all_six_parameters(si_mp, poly_result, orientations):
         assert abs(err["combined_tilt"]) <= 0.01 and abs(err["azimuthal"]) <= 0.02, err
     assert mis <= MISORIENTATION_TOL
     # The start was far off: the test could fail
-    start_err = np.abs(sm.start_geometry.values(["pcx", "pcy", "pcz"]) - sm.geometry.values(["pcx", "pcy", "pcz"]))
+    start_err = np.abs(
+        sm.start_geometry.values(["pcx", "pcy", "pcz"]) - sm.geometry.values(["pcx", "pcy", "pcz"])
+    )
     assert start_err.max() > 50 * PC_TOL
     assert res.converged
 
@@ -216,8 +249,18 @@ def test_result_contents(poly, poly_result):
     h = res.history
     assert h[0]["displacement_after"] < 0.1 * h[0]["displacement_before"]
     assert h[0]["ncc_after"] > h[0]["ncc_before"]
-    assert all(set(x) >= {"parameters", "ncc_before", "ncc_after", "displacement_before",
-                          "displacement_after", "accepted"} for x in h)
+    assert all(
+        set(x)
+        >= {
+            "parameters",
+            "ncc_before",
+            "ncc_after",
+            "displacement_before",
+            "displacement_after",
+            "accepted",
+        }
+        for x in h
+    )
     assert "pcx" in repr(res)
 
 
@@ -235,7 +278,10 @@ def test_inputs_not_modified(si_mp):
 
 def test_pc_only_noise_free(si_mp):
     sm = synthetic.synthetic_map(
-        si_mp, (6, 6), shape=(60, 60), seed=1,
+        si_mp,
+        (6, 6),
+        shape=(60, 60),
+        seed=1,
         perturbation={"pcx": -0.012, "pcy": 0.01, "pcz": -0.015},
     )
     res = _refine(sm, parameters=["pcx", "pcy", "pcz"], points=36)
@@ -339,8 +385,11 @@ class TestBadInput:
 
     def _call(self, sm, **kw):
         args = dict(
-            xmap=sm.start_xmap, detector=sm.start_detector, master_pattern=sm.master_pattern,
-            energy=20, show_progressbar=False,
+            xmap=sm.start_xmap,
+            detector=sm.start_detector,
+            master_pattern=sm.master_pattern,
+            energy=20,
+            show_progressbar=False,
         )
         args.update(kw)
         signal = args.pop("signal", sm.signal)
@@ -357,8 +406,12 @@ class TestBadInput:
             self._call(sm, detector=det)
 
     def test_stereographic(self, sm):
-        mp = EBSDMasterPattern(sm.master_pattern.data, projection="stereographic",
-                               hemisphere="both", phase=sm.master_pattern.phase)
+        mp = EBSDMasterPattern(
+            sm.master_pattern.data,
+            projection="stereographic",
+            hemisphere="both",
+            phase=sm.master_pattern.phase,
+        )
         with pytest.raises(ValueError, match="lambert"):
             self._call(sm, master_pattern=mp)
 
@@ -402,11 +455,21 @@ def test_batio3_wrong_variants_corrected(bto_mp):
     wrong = np.random.default_rng(0).random(36) < 0.3
     r = sm.start_xmap.rotations.data.copy()
     r[wrong] = (ops[2] * sm.start_xmap.rotations[wrong]).data
-    xmap = CrystalMap(rotations=Rotation(r), x=sm.start_xmap.x, y=sm.start_xmap.y,
-                      phase_list=sm.start_xmap.phases)
+    xmap = CrystalMap(
+        rotations=Rotation(r),
+        x=sm.start_xmap.x,
+        y=sm.start_xmap.y,
+        phase_list=sm.start_xmap.phases,
+    )
     res = sm.signal.refine_geometry_dic(
-        xmap, sm.start_detector, sm.master_pattern, 20, points=36, orientation_prior=0.3,
-        pseudo_symmetry_ops=ops[1:], show_progressbar=False,
+        xmap,
+        sm.start_detector,
+        sm.master_pattern,
+        20,
+        points=36,
+        orientation_prior=0.3,
+        pseudo_symmetry_ops=ops[1:],
+        show_progressbar=False,
     )
     err, mis = _errors(res, sm)
     assert wrong.sum() >= 8
@@ -436,8 +499,14 @@ def test_progressbar(tiny, monkeypatch, capsys, preference, show, shown):
 
     monkeypatch.setattr(hs.preferences.General, "show_progressbar", preference)
     res = kg.refine_geometry_dic(
-        tiny.signal, tiny.start_xmap, tiny.start_detector, tiny.master_pattern, tiny.energy,
-        parameters=["pcx", "pcy", "pcz"], points=9, max_iterations=2,
+        tiny.signal,
+        tiny.start_xmap,
+        tiny.start_detector,
+        tiny.master_pattern,
+        tiny.energy,
+        parameters=["pcx", "pcy", "pcz"],
+        points=9,
+        max_iterations=2,
         show_progressbar=show,
     )
     out, err = capsys.readouterr()
@@ -463,13 +532,18 @@ def test_progressbar(tiny, monkeypatch, capsys, preference, show, shown):
 
 def test_progressbar_paper_solver(tiny, capsys):
     res = kg.refine_geometry_dic(
-        tiny.signal, tiny.start_xmap, tiny.start_detector, tiny.master_pattern, tiny.energy,
-        parameters=["pcx", "pcy", "pcz"], points=9, max_iterations=1, solver="paper",
+        tiny.signal,
+        tiny.start_xmap,
+        tiny.start_detector,
+        tiny.master_pattern,
+        tiny.energy,
+        parameters=["pcx", "pcy", "pcz"],
+        points=9,
+        max_iterations=1,
+        solver="paper",
         show_progressbar=True,
     )
     out, err = capsys.readouterr()
     assert out.splitlines()[0].startswith("Refining the geometry (paper solver)")
-    assert sum(li.startswith("  iteration 0: NCC") for li in out.splitlines()) == len(
-        res.history
-    )
+    assert sum(li.startswith("  iteration 0: NCC") for li in out.splitlines()) == len(res.history)
     assert "Geometry refinement" in err

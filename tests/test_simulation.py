@@ -74,8 +74,7 @@ def test_budget_below_one_pattern_simulates_one_at_a_time(mp, calls):
 def test_chunked_same_as_kikuchipy(mp):
     rot, det = _rotations(4), _detector(4)
     ours = simulation.simulate_patterns(mp, rot, det, 20, max_bytes=3 * PER_PATTERN)
-    ref = mp.get_patterns(rot, det, 20, dtype_out=np.float32, compute=True,
-                          show_progressbar=False)
+    ref = mp.get_patterns(rot, det, 20, dtype_out=np.float32, compute=True, show_progressbar=False)
     assert np.allclose(ours, np.asarray(ref.data).reshape(ours.shape), atol=1e-6)
 
 

@@ -109,7 +109,7 @@ class TestJoint:
         a = np.zeros((n * m, k + 3 * n))
         a[:, :k] = jg.reshape(n * m, k)
         for i in range(n):
-            a[i * m:(i + 1) * m, k + 3 * i:k + 3 * i + 3] = jr[i]
+            a[i * m : (i + 1) * m, k + 3 * i : k + 3 * i + 3] = jr[i]
         sw = np.sqrt(w.ravel())
         a, rhs = a * sw[:, None], -b.ravel() * sw
         if prior is not None:

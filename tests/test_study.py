@@ -38,8 +38,14 @@ def test_study_table(study):
     # The paper's d: pcz 0.08, tilt 1 deg; levels +-d/2
     assert sorted(set(np.round(t["delta1"], 6))) == [-0.04, 0.0, 0.04]
     assert sorted(set(np.round(t["delta2"], 6))) == [-0.5, 0.0, 0.5]
-    for name in ("final_ncc", "misorientation", "err_pcx", "nerr_tilt", "initial_displacement",
-                 "initial_displacement_eq2"):
+    for name in (
+        "final_ncc",
+        "misorientation",
+        "err_pcx",
+        "nerr_tilt",
+        "initial_displacement",
+        "initial_displacement_eq2",
+    ):
         assert np.isfinite(t[name]).all(), name
 
 
@@ -103,8 +109,9 @@ def test_model_displacement_matches_measured(si_mp):
     # pixel (no empty ROIs) gives more
     geo = st.paper_geometry((3, 3), (60, 60))
     other = geo.updated({"pcz": 0.02, "tilt": 0.5})
-    sm = synthetic.synthetic_map(si_mp, (3, 3), geometry=geo, perturbation={},
-                                 orientation_error=0, shape=(60, 60), seed=2)
+    sm = synthetic.synthetic_map(
+        si_mp, (3, 3), geometry=geo, perturbation={}, orientation_error=0, shape=(60, 60), seed=2
+    )
     pts = np.stack([a.ravel() for a in np.indices((3, 3))], axis=1)
     model, measured = st.eq2_displacement(si_mp, sm.xmap.rotations, geo, other, pts)
     assert model == pytest.approx(measured, rel=0.1)

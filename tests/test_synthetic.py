@@ -113,9 +113,7 @@ class TestSyntheticMap:
         c = synthetic.synthetic_map(si_mp, seed=6, **kw)
         assert np.array_equal(a.signal.data, b.signal.data.compute())
         assert not np.array_equal(a.signal.data, c.signal.data)
-        assert np.allclose(
-            (a.xmap.rotations * ~b.xmap.rotations).angle, 0, atol=1e-12
-        )
+        assert np.allclose((a.xmap.rotations * ~b.xmap.rotations).angle, 0, atol=1e-12)
 
     def test_noise_at_dose(self, si_mp):
         sm = synthetic.synthetic_map(si_mp, (2, 2), shape=(40, 40), dose=50, seed=0)

@@ -72,7 +72,10 @@ def test_quickstart_runs(monkeypatch):
     assert "This notebook ran in" in out
     assert "(6 x 6 map)" in out
     errors = [
-        o for c in nb.cells if c.cell_type == "code" for o in c.outputs
+        o
+        for c in nb.cells
+        if c.cell_type == "code"
+        for o in c.outputs
         if o.get("output_type") == "error"
     ]
     assert not errors
