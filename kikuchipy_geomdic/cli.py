@@ -163,8 +163,9 @@ def _demo(args: argparse.Namespace) -> int:
     if res.undetermined:
         print(
             f"Poorly determined by this map: {', '.join(res.undetermined)} (standard "
-            "errors above DETERMINACY_LIMITS): moved only by significant steps. A wider "
-            "field of view, more points or an orientation prior determine them better."
+            "errors above DETERMINACY_LIMITS): they leave their start only by a significant "
+            "step. A wider field of view, more points or an orientation prior determine them "
+            "better."
         )
     idx = flat_index(res.points, sm.geometry.navigation_shape)
     truth = sm.xmap.rotations[idx]
