@@ -237,7 +237,7 @@ class _Recorder:
         comparison._pattern_wise, comparison.refine_orientations = o["pw"], o["ref"]
 
 
-def run_oracle(sm, points):
+def run_oracle(sm, points, dic_kwargs=None):
     """The geometry calibrated with the true orientations held fixed (a
     prior of :data:`ORACLE_PRIOR`): the noise floor of the data."""
     from kikuchipy_geomdic.refinement import refine_geometry_dic
@@ -251,6 +251,7 @@ def run_oracle(sm, points):
         sm.energy,
         points=points,
         orientation_prior=ORACLE_PRIOR,
+        dic_kwargs=dic_kwargs,
         show_progressbar=False,
     )
     return dict(
@@ -262,6 +263,10 @@ def run_oracle(sm, points):
         - (sm.geometry.tilt - sm.geometry.sample_tilt),
         err_azimuthal=res.parameters["azimuthal"] - sm.geometry.azimuthal,
     )
+
+
+def _dic_kwargs(args) -> dict:
+    return {} if args.window is None else dict(window=args.window)
 
 
 def run_start(name, args, mp, side, out_dir, suffix):
@@ -299,7 +304,8 @@ def run_start(name, args, mp, side, out_dir, suffix):
             points=side * side,
             methods=args.methods,
             method_points={"differential-evolution": args.de_points},
-            dic_configs={"dic-paper": dict(solver="paper")},
+            refine_kwargs=dict(dic_kwargs=_dic_kwargs(args)),
+            dic_configs={"dic-paper": dict(solver="paper", dic_kwargs=_dic_kwargs(args))},
             de_kwargs=dict(seed=0, maxiter=args.de_maxiter),
             scheduler="synchronous",
             verbose=True,
@@ -337,7 +343,7 @@ def run_start(name, args, mp, side, out_dir, suffix):
         flush=True,
     )
     if args.oracle:
-        o = run_oracle(sm, side * side)
+        o = run_oracle(sm, side * side, _dic_kwargs(args))
         print(
             f"Oracle (true orientations held fixed): max PC error {o['max_pc_error']:.2e} in "
             f"{o['time']:.1f} s; DIC joint / oracle PC error "
@@ -411,6 +417,9 @@ def main(argv=None) -> int:
         help="also calibrate with the true orientations held fixed",
     )
     ap.add_argument("--suffix", default="", help="added to the output file names")
+    ap.add_argument(
+        "--window", type=int, default=None, help="Lucas-Kanade window (px) of every DIC run"
+    )
     args = ap.parse_args(argv)
     if args.methods[0] != "dic":
         ap.error("--methods must start with dic (speed-ups are relative to it)")
