@@ -555,8 +555,8 @@ DETERMINACY_LIMITS = {
     "twist": 0.1,
 }
 
-#: A poorly determined parameter (standard error above its limit) is
-#: moved only by a step of at least this many standard errors.
+#: A poorly determined parameter (standard error above its limit) leaves
+#: its start value only by a step of at least this many standard errors.
 SIGNIFICANCE = 3.0
 
 _PC = ("pcx", "pcy", "pcz")
