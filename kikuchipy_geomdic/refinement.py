@@ -21,8 +21,13 @@ is below its standard error.
   detector angles for every pattern. Without an ``orientation_prior``
   only the PC field across the map separates the two; with one, the
   starting orientations' mean pins it. Parameters the map determines
-  poorly (standard error above :data:`DETERMINACY_LIMITS`) move only by
-  significant steps rather than follow the noise.
+  poorly (standard error above :data:`DETERMINACY_LIMITS`) leave their
+  start only by a significant step rather than follow the noise; such
+  angles wait until the PC has settled, and a step in them, which the RMS
+  cannot resolve, is accepted when no parameter would move significantly
+  from where it lands.
+- *Standard errors.* Cluster-robust over the patterns: DIC errors within
+  a pattern are correlated, which a model of independent vectors misses.
 - *Weights.* An ROI mean of ``c`` vectors weighs ``c`` times a vector, and
   each pattern has its own vector variance, estimated from its residuals
   (never below the median pattern's), so that a poor pattern (a grain
@@ -47,6 +52,7 @@ refinement inside the loop and NCC acceptance, with these departures:
   ``ncc_tolerance`` and the displacement no longer falls by 10 %.
 - *Jacobian.* ``"analytic"`` evaluates the forward displacement map at the
   measured feature positions instead of simulating at ``p +- delta``.
+
 Layout
 ------
 As kikuchipy's :meth:`~kikuchipy.signals.EBSD.refine_orientation`:
