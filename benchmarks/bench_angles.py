@@ -71,6 +71,7 @@ from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from _tee import Tee  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 LIMIT = 0.1  # refinement.DETERMINACY_LIMITS of the angles (deg)
@@ -135,20 +136,6 @@ SHOW = [
     "t_map",
     "t_refine",
 ]
-
-
-class _Tee:
-    def __init__(self, *streams):
-        self.streams = streams
-
-    def write(self, s):
-        for st in self.streams:
-            st.write(s)
-            st.flush()
-
-    def flush(self):
-        for st in self.streams:
-            st.flush()
 
 
 def configurations(base: dict, sweeps: dict) -> list[dict]:
@@ -534,7 +521,7 @@ def main(argv=None) -> int:
     cv2.setNumThreads(1)
     dask.config.set(scheduler="synchronous")
     log = open(args.out / f"angles{suffix}.log", "w")
-    sys.stdout = _Tee(sys.__stdout__, log)
+    sys.stdout = Tee(sys.__stdout__, log)
     commit = subprocess.run(
         ["git", "rev-parse", "--short", "HEAD"],
         capture_output=True,

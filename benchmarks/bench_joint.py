@@ -74,6 +74,7 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from _tee import Tee  # noqa: E402
 from orix.quaternion import Rotation  # noqa: E402
 
 from kikuchipy_geomdic import (  # noqa: E402
@@ -141,20 +142,6 @@ SHOW = [
     "misorientation_rerefined_nocommon_median",
     "undetermined",
 ]
-
-
-class _Tee:
-    def __init__(self, *streams):
-        self.streams = streams
-
-    def write(self, s):
-        for st in self.streams:
-            st.write(s)
-            st.flush()
-
-    def flush(self):
-        for st in self.streams:
-            st.flush()
 
 
 def _angles(a: Rotation, b: Rotation) -> np.ndarray:
@@ -435,7 +422,7 @@ def main(argv=None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     log = open(args.out / f"joint_bench{suffix}.log", "w")
     stdout = sys.stdout
-    sys.stdout = _Tee(stdout, log)
+    sys.stdout = Tee(stdout, log)
     try:
         side = int(round(np.sqrt(args.points)))
         print(
