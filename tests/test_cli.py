@@ -782,6 +782,10 @@ def test_ctrl_c_in_a_real_process(tmp_path, data):
         stderr=subprocess.PIPE,
         text=True,
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        # A shell without job control starts background jobs with SIGINT
+        # ignored, and the child would inherit that: Python then installs
+        # no KeyboardInterrupt handler
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     try:
         deadline = time.monotonic() + 240
