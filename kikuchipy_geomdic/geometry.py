@@ -384,8 +384,27 @@ def rotation_vectors(rotations: Rotation) -> np.ndarray:
 
 
 def rotations_from_vectors(vectors: np.ndarray) -> Rotation:
-    """Return rotations from rotation vectors (n, 3) in radians; the
-    inverse of :func:`rotation_vectors`."""
+    """Return rotations from rotation vectors; the inverse of
+    :func:`rotation_vectors`.
+
+    Parameters
+    ----------
+    vectors
+        Rotation vectors (n, 3) (or (3,)): axis times angle, radians.
+
+    Returns
+    -------
+    rotations
+        orix rotations (n,).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from kikuchipy_geomdic.geometry import rotation_vectors, rotations_from_vectors
+    >>> v = np.array([[0.0, 0.0, np.pi / 2]])
+    >>> np.allclose(rotation_vectors(rotations_from_vectors(v)), v)
+    True
+    """
     v = np.asarray(vectors, dtype=np.float64).reshape(-1, 3)
     half = np.linalg.norm(v, axis=1) / 2
     # sin(x) / x without dividing by zero; exact to float64 for tiny x

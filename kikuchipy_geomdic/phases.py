@@ -61,6 +61,16 @@ def _lattices_agree(a: np.ndarray, b: np.ndarray, rtol: float = 0.02) -> bool:
 def describe_phase(phase: Phase) -> str:
     """Return a phase's name, point group and lattice for messages.
 
+    Parameters
+    ----------
+    phase
+        orix phase.
+
+    Returns
+    -------
+    text
+        E.g. ``"'Si' (m-3m, a b c = 5.431 5.431 5.431)"``.
+
     Examples
     --------
     >>> from orix.crystal_map import Phase
@@ -202,6 +212,16 @@ def match_phase(
 
     The same as :func:`check_phase` (kept under this name for existing
     code).
+
+    Parameters
+    ----------
+    xmap, master_pattern, phase
+        As for :func:`check_phase`.
+
+    Returns
+    -------
+    phase_id
+        The id in ``xmap.phases``.
     """
     return check_phase(xmap, master_pattern, phase)
 
@@ -257,9 +277,31 @@ def map_with_phase(
     phase_id: int,
     phase: Phase,
 ) -> CrystalMap:
-    """A crystal map with *xmap*'s coordinates, scan unit and phases
-    (copied), phase *phase_id* replaced by *phase*, and the given
-    rotations, phase ids and properties (not copied)."""
+    """Return a crystal map with *xmap*'s coordinates, scan unit and
+    phases (copied), one phase replaced, and new rotations, phase ids and
+    properties.
+
+    Parameters
+    ----------
+    xmap
+        Crystal map whose coordinates, scan unit and phases are copied;
+        not modified.
+    rotations
+        Rotations of the new map (not copied).
+    phase_ids
+        Phase ids of the new map (not copied).
+    prop
+        Properties of the new map (not copied).
+    phase_id
+        Id of the phase to replace (added if absent; its colour is kept).
+    phase
+        The phase put there (copied).
+
+    Returns
+    -------
+    xmap
+        A new :class:`~orix.crystal_map.CrystalMap`.
+    """
     phases = {int(i): p.deepcopy() for i, p in xmap.phases if i >= 0}
     new = phase.deepcopy()
     if phase_id in phases:

@@ -634,10 +634,28 @@ def summarise(
     wall_time=float("nan"),
     axis: str = "initial_displacement",
 ) -> dict:
-    """Return the headline numbers of a study table (see
-    :meth:`PerturbationStudy.summary`); *axis* is the displacement column
-    the limits refer to ("initial_displacement" or the paper's
-    "initial_displacement_eq2")."""
+    """Return the headline numbers of a study table.
+
+    Parameters
+    ----------
+    table
+        Study table (:attr:`PerturbationStudy.table`).
+    limits
+        Initial displacements (fractions of the width) below which the
+        successes are counted (``success_below_<limit>``).
+    wall_time
+        Wall time of the study, s, copied into the summary.
+    axis
+        Displacement column the limits refer to: "initial_displacement"
+        or the paper's "initial_displacement_eq2".
+
+    Returns
+    -------
+    summary
+        Run and success counts, the smallest failed and largest
+        successful displacement, median and largest errors, run times
+        (as :meth:`PerturbationStudy.summary`).
+    """
     t = table
     d0 = t[axis]
     out: dict[str, Any] = {
