@@ -77,11 +77,7 @@ import numpy as np  # noqa: E402
 from _tee import Tee  # noqa: E402
 from orix.quaternion import Rotation  # noqa: E402
 
-from kikuchipy_geomdic import (  # noqa: E402
-    comparison,
-    study,  # noqa: E402
-    synthetic,  # noqa: E402
-)
+from kikuchipy_geomdic import comparison, study, synthetic  # noqa: E402
 from kikuchipy_geomdic.maps import flat_index  # noqa: E402
 from kikuchipy_geomdic.refinement import calibration_points  # noqa: E402
 
@@ -122,25 +118,20 @@ COLUMNS = [
     "ncc",
     "undetermined",
 ]
+#: Columns of the printed table: the CSV's without the details
 SHOW = [
-    "method",
-    "n_points",
-    "time",
-    "time_per_point",
-    "time_at_n",
-    "extrapolated",
-    "speedup",
-    "max_pc_error",
-    "err_tilt_difference",
-    "err_azimuthal",
-    "misorientation",
-    "misorientation_nocommon",
-    "misorientation_nocommon_median",
-    "n_off",
-    "common_rotation",
-    "misorientation_rerefined",
-    "misorientation_rerefined_nocommon_median",
-    "undetermined",
+    c
+    for c in COLUMNS
+    if c
+    not in (
+        "iterations",
+        "err_pcx",
+        "err_pcy",
+        "err_pcz",
+        "misorientation_rerefined_nocommon",
+        "time_rerefine",
+        "ncc",
+    )
 ]
 
 
@@ -246,9 +237,7 @@ def run_oracle(sm, points, dic_kwargs=None):
         n_points=len(res.points),
         time=time.perf_counter() - t0,
         max_pc_error=float(np.abs(res.detector.pc - sm.detector.pc).max()),
-        err_tilt_difference=(res.parameters["tilt"] - res.parameters["sample_tilt"])
-        - (sm.geometry.tilt - sm.geometry.sample_tilt),
-        err_azimuthal=res.parameters["azimuthal"] - sm.geometry.azimuthal,
+        **{f"err_{k}": v for k, v in study._geometry_errors(res.geometry, sm.geometry).items()},
     )
 
 
