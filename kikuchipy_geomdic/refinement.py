@@ -942,8 +942,8 @@ class _JointCarry:
     damping
         The Levenberg-Marquardt damping the next trial starts with.
     hold
-        Whether poorly determined parameters still wait for the
-        determined ones to settle: far from the solution the standard
+        Whether poorly determined angles still wait for the PC to
+        settle: far from the solution the standard
         errors of a small map are not to be trusted (measured: a 4 x 4
         map moved the azimuthal angle by 3.9 deg "at 3.2 sigma", away
         from the truth).
@@ -985,13 +985,14 @@ class _JointStep:
 
 def _choose_free(
     solved: Sequence[str], update: JointUpdate, carry: _JointCarry
-) -> tuple[bool, tuple[str, ...], tuple[str, ...]]:
+) -> tuple[bool, tuple[str, ...], tuple[str, ...], bool]:
     """Split the *solved* parameters, from a solve with all of them, into
     those kept at their value and those free to move; also return whether
-    poorly determined parameters are still held.
+    poorly determined parameters are still held and whether one leaves
+    its start now.
 
-    A parameter the map determines only poorly moves only by a
-    significant step, so that noise cannot walk it around. Far from the
+    A parameter the map determines only poorly leaves its start only by
+    a significant step, so that noise cannot walk it around. Far from the
     solution the standard errors of a small map are not to be trusted
     (measured: a 4 x 4 map moved the azimuthal angle by 3.9 deg "at 3.2
     sigma", away from the truth), so poorly determined angles are held
@@ -1007,7 +1008,8 @@ def _choose_free(
         # Nothing else to settle first: significance alone decides
         hold = False
         weak = [n for n in poor if abs(step[n]) < SIGNIFICANCE * se[n]]
-    return hold, tuple(weak), tuple(n for n in solved if n not in weak)
+    free = tuple(n for n in solved if n not in weak)
+    return hold, tuple(weak), free, any(n in poor for n in free)
 
 
 def _joint_step(
@@ -1028,7 +1030,7 @@ def _joint_step(
     offsets = problem.rotation_offsets(state.rotations)
     linear = _linearise(problem, state.geometry, state.field, solved)
     update, var = _joint_solve(state.field, linear, range(len(solved)), offsets, prior_rad, 0.0)
-    hold, weak, free = _choose_free(solved, update, carry)
+    hold, weak, free, released = _choose_free(solved, update, carry)
     carry = replace(carry, hold=hold)
     # Settled, and no parameter has become determinable since
     if (carry.settled and weak == carry.kept) or not free:
@@ -1092,10 +1094,6 @@ def _joint_step(
         if accepted:
             # A step that takes a poorly determined parameter off its
             # start is followed by at least one more, which may correct it
-            released = any(
-                n not in carry.moved and se > DETERMINACY_LIMITS[n]
-                for n, se in zip(free, update.standard_errors)
-            )
             settled = not released and (_within_errors(update) or 1 - after / before < MIN_FALL)
             moved = tuple(n for n in solved if n in carry.moved or n in free)
             return _JointStep(

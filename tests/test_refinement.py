@@ -489,6 +489,20 @@ def tiny(si_mp):
     return synthetic.synthetic_map(si_mp, (3, 3), shape=(40, 40), seed=4)
 
 
+def _refine_pc(sm, **kw):
+    """The PC of *sm* from 9 points, with the progress-bar option given."""
+    return kg.refine_geometry_dic(
+        sm.signal,
+        sm.start_xmap,
+        sm.start_detector,
+        sm.master_pattern,
+        sm.energy,
+        parameters=["pcx", "pcy", "pcz"],
+        points=9,
+        **kw,
+    )
+
+
 @pytest.mark.parametrize(
     "preference, show, shown",
     [(True, None, True), (False, None, False), (True, False, False), (False, True, True)],
@@ -498,17 +512,7 @@ def test_progressbar(tiny, monkeypatch, capsys, preference, show, shown):
     import hyperspy.api as hs
 
     monkeypatch.setattr(hs.preferences.General, "show_progressbar", preference)
-    res = kg.refine_geometry_dic(
-        tiny.signal,
-        tiny.start_xmap,
-        tiny.start_detector,
-        tiny.master_pattern,
-        tiny.energy,
-        parameters=["pcx", "pcy", "pcz"],
-        points=9,
-        max_iterations=2,
-        show_progressbar=show,
-    )
+    res = _refine_pc(tiny, max_iterations=2, show_progressbar=show)
     out, err = capsys.readouterr()
     if not shown:
         assert out == "" and err == ""
@@ -531,18 +535,7 @@ def test_progressbar(tiny, monkeypatch, capsys, preference, show, shown):
 
 
 def test_progressbar_paper_solver(tiny, capsys):
-    res = kg.refine_geometry_dic(
-        tiny.signal,
-        tiny.start_xmap,
-        tiny.start_detector,
-        tiny.master_pattern,
-        tiny.energy,
-        parameters=["pcx", "pcy", "pcz"],
-        points=9,
-        max_iterations=1,
-        solver="paper",
-        show_progressbar=True,
-    )
+    res = _refine_pc(tiny, max_iterations=1, solver="paper", show_progressbar=True)
     out, err = capsys.readouterr()
     assert out.splitlines()[0].startswith("Refining the geometry (paper solver)")
     assert sum(li.startswith("  iteration 0: NCC") for li in out.splitlines()) == len(res.history)
