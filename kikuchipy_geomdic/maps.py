@@ -10,9 +10,11 @@ crystal map's points).
 from __future__ import annotations
 
 import numpy as np
+from kikuchipy.detectors import EBSDDetector
+from kikuchipy.signals import EBSD
 from orix.crystal_map import CrystalMap
 
-__all__ = ["navigation_shape", "flat_index", "check_whole_map"]
+__all__ = ["navigation_shape", "flat_index", "check_whole_map", "check_signal_and_detector"]
 
 
 def navigation_shape(obj) -> tuple[int, int]:
@@ -88,6 +90,30 @@ def flat_index(points, navigation_shape: tuple[int, int]) -> np.ndarray:
     if pts.shape[-1:] != (2,) or pts.ndim > 2:
         raise ValueError(f"points must be (row, col) pairs, not an array of shape {pts.shape}")
     return np.ravel_multi_index((pts[..., 0], pts[..., 1]), tuple(navigation_shape))
+
+
+def check_signal_and_detector(signal, detector) -> None:
+    """Raise if *signal* is not a kikuchipy EBSD signal or *detector* not
+    a kikuchipy detector.
+
+    Parameters
+    ----------
+    signal
+        The map's patterns.
+    detector
+        Its detector.
+
+    Raises
+    ------
+    TypeError
+        Naming the argument of the wrong type.
+    """
+    if not isinstance(signal, EBSD):
+        raise TypeError(f"signal must be a kikuchipy EBSD signal, not {type(signal).__name__}")
+    if not isinstance(detector, EBSDDetector):
+        raise TypeError(
+            f"detector must be a kikuchipy EBSDDetector, not {type(detector).__name__}"
+        )
 
 
 def check_whole_map(xmap: CrystalMap) -> None:

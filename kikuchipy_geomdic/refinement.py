@@ -95,7 +95,7 @@ from kikuchipy_geomdic.jacobian import (
     finite_difference_jacobian,
     pattern_jacobian,
 )
-from kikuchipy_geomdic.maps import flat_index, navigation_shape
+from kikuchipy_geomdic.maps import check_signal_and_detector, flat_index, navigation_shape
 from kikuchipy_geomdic.phases import check_phase
 from kikuchipy_geomdic.reindex import refine_orientations, usable_points
 from kikuchipy_geomdic.simulation import check_master_pattern, simulate_patterns
@@ -380,14 +380,9 @@ def _step_sizes(signal: EBSD) -> tuple[float, float]:
 
 
 def _check_inputs(signal, xmap, detector, master_pattern, phase, nav):
-    if not isinstance(signal, EBSD):
-        raise TypeError(f"signal must be a kikuchipy EBSD signal, not {type(signal).__name__}")
+    check_signal_and_detector(signal, detector)
     if not isinstance(xmap, CrystalMap):
         raise TypeError(f"xmap must be an orix CrystalMap, not {type(xmap).__name__}")
-    if not isinstance(detector, EBSDDetector):
-        raise TypeError(
-            f"detector must be a kikuchipy EBSDDetector, not {type(detector).__name__}"
-        )
     check_master_pattern(master_pattern)
     xshape = xmap.shape if len(xmap.shape) == 2 else (1,) + tuple(xmap.shape)
     if tuple(xshape) != nav or xmap.size != nav[0] * nav[1]:

@@ -41,7 +41,7 @@ from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.displacement import bin_pattern
 from kikuchipy_geomdic.geometry import copy_detector
-from kikuchipy_geomdic.maps import check_whole_map, navigation_shape
+from kikuchipy_geomdic.maps import check_signal_and_detector, check_whole_map, navigation_shape
 
 # Defined in kikuchipy_geomdic.phases; importable from here for existing code
 from kikuchipy_geomdic.phases import (  # noqa: F401
@@ -178,12 +178,7 @@ def reindex(
     if refine_kwargs.get("compute", True) is not True:
         raise ValueError("reindex() computes; call signal.refine_orientation() for a lazy result")
     refine_kwargs.pop("compute", None)
-    if not isinstance(signal, EBSD):
-        raise TypeError(f"signal must be a kikuchipy EBSD signal, not {type(signal).__name__}")
-    if not isinstance(detector, EBSDDetector):
-        raise TypeError(
-            f"detector must be a kikuchipy EBSDDetector, not {type(detector).__name__}"
-        )
+    check_signal_and_detector(signal, detector)
     check_whole_map(xmap)
     n_points = int(np.prod(navigation_shape(signal)))  # 1D or 2D maps only
     # kikuchipy compares the crystal map's shape with this one exactly
