@@ -869,6 +869,10 @@ def _reindex(args: argparse.Namespace) -> int:
     det, source = _reindex_detector(args, signal)
     _check_detector(det, signal)
     kw: dict[str, Any] = {"method": args.method}
+    if args.method == "kikuchipy":
+        kw["kikuchipy_method"] = args.kikuchipy_method
+    elif args.method_kwargs or args.trust_region is not None:
+        raise CLIError("--method-kwargs and --trust-region are options of --method kikuchipy")
     if args.method_kwargs:
         try:
             kw["method_kwargs"] = json.loads(args.method_kwargs)
@@ -888,6 +892,7 @@ def _reindex(args: argparse.Namespace) -> int:
     out, seconds = _run_on_map(reindex, args, (signal, xmap, det, mp), phase=phase_id, **kw)
     refined = out.prop["refined"].astype(bool)
     scores = out.prop["scores"][refined]
+    evals = "iterations" if args.method == "geomdic" else "num_evals"
     stats = {
         "points": int(out.size),
         "refined": int(refined.sum()),
@@ -896,7 +901,9 @@ def _reindex(args: argparse.Namespace) -> int:
         "mean_ncc": float(scores.mean()) if scores.size else None,
         "median_ncc": float(np.median(scores)) if scores.size else None,
         "min_ncc": float(scores.min()) if scores.size else None,
-        "mean_num_evals": float(out.prop["num_evals"][refined].mean()) if scores.size else None,
+        "mean_evaluations": float(out.prop[evals][refined].mean()) if scores.size else None,
+        # Refined but not to be trusted (geomdic: poor for where they are)
+        "flagged": int((refined & (out.prop.get("converged", refined) == 0)).sum()),
         "seconds": round(seconds, 3),
         "patterns_per_second": float(refined.sum() / seconds) if seconds > 0 else None,
     }
@@ -923,7 +930,12 @@ def _reindex(args: argparse.Namespace) -> int:
             else ""
         )
         + f"; {stats['not_refined_unusable']} not indexed or unusable, "
-        f"{stats['not_refined_nan_patterns']} with NaN patterns."
+        f"{stats['not_refined_nan_patterns']} with NaN patterns"
+        + (
+            f"; {stats['flagged']} flagged as not converged (property 'converged' = 0)."
+            if args.method == "geomdic"
+            else "."
+        )
     )
     say(f"Results written to {str(staging.out)!r}: {', '.join(REINDEX_OUTPUTS)}")
     return 0
@@ -1144,7 +1156,8 @@ def _parser() -> argparse.ArgumentParser:
         help="refine every orientation of a map with a calibrated detector",
         description=(
             "Refine the orientation of every indexed point of the map with a calibrated "
-            "detector (kikuchipy's refine_orientation through dask: lazy, chunk by "
+            "detector (this package's Gauss-Newton solver, or kikuchipy's "
+            "refine_orientation with --method kikuchipy; through dask: lazy, chunk by "
             "chunk, on a dask.distributed cluster with --scheduler). Writes to --out "
             "xmap_refined.ang, xmap_refined.h5 (orix) and reindex.json."
         ),
@@ -1161,20 +1174,29 @@ def _parser() -> argparse.ArgumentParser:
     )
     reidx.add_argument(
         "--method",
+        choices=("geomdic", "kikuchipy"),
+        default="geomdic",
+        help="geomdic (default): this package's Gauss-Newton solver, poor points "
+        "re-seeded from their neighbours and flagged; kikuchipy: kikuchipy's "
+        "refine_orientation",
+    )
+    reidx.add_argument(
+        "--kikuchipy-method",
         default="minimize",
-        help="kikuchipy optimisation method (default minimize: Nelder-Mead)",
+        help="with --method kikuchipy: its optimisation method (default minimize: Nelder-Mead)",
     )
     reidx.add_argument(
         "--method-kwargs",
         metavar="JSON",
-        help='keyword arguments of the method as JSON, e.g. \'{"method": "Powell"}\'',
+        help="with --method kikuchipy: keyword arguments of its method as JSON, e.g. "
+        '\'{"method": "Powell"}\'',
     )
     reidx.add_argument(
         "--trust-region",
         type=float,
         nargs=3,
         metavar=("D1", "D2", "D3"),
-        help="+- bounds in degrees on the three Euler angles",
+        help="with --method kikuchipy: +- bounds in degrees on the three Euler angles",
     )
     _command_output(reidx, "reindex", _reindex)
     return parser

@@ -27,7 +27,7 @@ import numpy as np
 from kikuchipy_geomdic import synthetic
 from kikuchipy_geomdic.maps import flat_index
 from kikuchipy_geomdic.refinement import calibration_points
-from kikuchipy_geomdic.reindex import _quiet, _stack_signal, refine_orientations
+from kikuchipy_geomdic.reindex import quiet, refine_orientations, stack_signal
 from kikuchipy_geomdic.study import (
     _PC,
     _disorientation_from_mean,
@@ -51,8 +51,8 @@ def _pattern_wise(
     trust_region,
 ):
     """kikuchipy's pattern-wise orientation and PC refinement of the points."""
-    signal, xmap = _stack_signal(experimental, start_rot, phase)
-    with _quiet(), warnings.catch_warnings():
+    signal, xmap = stack_signal(experimental, start_rot, phase)
+    with quiet(), warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return signal.refine_orientation_projection_center(
             xmap,

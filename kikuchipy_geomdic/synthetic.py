@@ -61,7 +61,7 @@ from kikuchipy_geomdic.geometry import (
     rotation_vectors,
     rotations_from_vectors,
 )
-from kikuchipy_geomdic.reindex import _quiet
+from kikuchipy_geomdic.reindex import quiet
 from kikuchipy_geomdic.simulation import check_master_pattern, simulate_patterns
 
 __all__ = [
@@ -568,7 +568,10 @@ def synthetic_map(
         Map shape (rows, columns).
     orientations
         "single" (one crystal, orientations scattered by *scatter*),
-        "random" (uniformly random per point) or "variants" (BaTiO3-like
+        "random" (uniformly random per point), "grains" (a polycrystal:
+        Voronoi grains of :data:`GRAIN_POINTS` points on average, random
+        orientations scattered by *scatter* within each, property
+        ``grain``) or "variants" (BaTiO3-like
         diagonal domains, each one of the six variants of
         :func:`variant_operators` applied to one parent orientation,
         scattered by *scatter*).
@@ -667,6 +670,10 @@ def synthetic_map(
         rot = _random_rotations(n, rng)
     elif orientations == "single":
         rot = perturb_rotations(_random_rotations(1, rng) * Rotation.identity(n), scatter, rng)
+    elif orientations == "grains":
+        grain = _grains(nav, rng).ravel()
+        rot = perturb_rotations(_random_rotations(grain.max() + 1, rng)[grain], scatter, rng)
+        prop["grain"] = grain
     elif orientations == "variants":
         variant = _domains(nav).ravel()
         parent = _random_rotations(1, rng)
@@ -675,7 +682,8 @@ def synthetic_map(
         prop["variant"] = variant
     else:
         raise ValueError(
-            f"orientations must be 'single', 'random' or 'variants', not {orientations!r}"
+            "orientations must be 'single', 'random', 'grains' or 'variants', "
+            f"not {orientations!r}"
         )
     # "indexed" refines the "uncentred" start: same draws for all models
     start_rot = perturb_rotations(rot, orientation_error, rng, centred=start == "centred")
@@ -740,9 +748,23 @@ def _refine_orientations(signal, xmap, detector, master_pattern, energy) -> Rota
     # clipped to the bounds, and stalls on orientations with a small Euler
     # angle (Phi near 2 deg). It builds a dask graph over the signal's
     # chunks, so a lazy signal is simulated chunk by chunk
-    with _quiet():
+    with quiet():
         refined = signal.refine_orientation(xmap, detector, master_pattern, energy)
     return refined.rotations.flatten()
+
+
+#: Map points per grain of ``orientations="grains"`` (on average).
+GRAIN_POINTS = 16
+
+
+def _grains(nav: tuple[int, int], rng) -> np.ndarray:
+    # Voronoi cells of random centres: grains larger than a step, as in a
+    # real polycrystal map, so that neighbours share an orientation
+    n = max(2, nav[0] * nav[1] // GRAIN_POINTS)
+    centres = rng.uniform([0, 0], nav, size=(n, 2))
+    points = np.indices(nav).reshape(2, -1).T + 0.5
+    d = ((points[:, None, :] - centres[None]) ** 2).sum(axis=-1)
+    return d.argmin(axis=1).reshape(nav)
 
 
 def _domains(nav: tuple[int, int]) -> np.ndarray:

@@ -66,8 +66,23 @@ def test_reindex_recovers_true_orientations(sm, refined):
     np.testing.assert_array_equal(refined.x, sm.start_xmap.x)
     np.testing.assert_array_equal(refined.y, sm.start_xmap.y)
     assert refined.refined.all() and refined.scores.min() > 0.99
-    assert refined.num_evals.min() > 0
+    assert refined.converged.all() and not refined.reseeded.any()
+    assert 0 < refined.iterations.min() and refined.iterations.max() < 30
     assert refined.phases[0].point_group.name == "m-3m"
+
+
+def test_kikuchipy_method_by_name(sm, refined):
+    """kikuchipy's Nelder-Mead stays available and reaches the same
+    orientations (both maximise the same NCC)."""
+    nm = reindex(
+        sm.signal, sm.start_xmap, sm.detector, sm.master_pattern, sm.energy,
+        method="kikuchipy", show_progressbar=False,
+    )  # fmt: skip
+    assert misorientation(nm, sm.xmap).mean() < MISORIENTATION_TOL
+    assert nm.num_evals.min() > 0 and "converged" not in nm.prop
+    # The two optima agree far below the start's 0.3 deg
+    assert misorientation(nm, refined).max() < 0.02
+    np.testing.assert_allclose(nm.scores, refined.scores, atol=2e-4)
 
 
 def test_inputs_not_modified(sm, si_mp):
@@ -81,6 +96,16 @@ def test_inputs_not_modified(sm, si_mp):
         si_mp,
         20,
         show_progressbar=False,
+        dic_rms=True,
+    )
+    reindex(
+        signal,
+        xmap,
+        det,
+        si_mp,
+        20,
+        show_progressbar=False,
+        method="kikuchipy",
         method_kwargs={"method": "Nelder-Mead", "options": {"maxfev": 20}},
     )
     np.testing.assert_array_equal(signal.data, sm.signal.data)
@@ -159,7 +184,6 @@ def test_phase_read_from_ang_is_matched(tmp_path, sm):
         sm.master_pattern,
         sm.energy,
         show_progressbar=False,
-        method_kwargs={"method": "Nelder-Mead", "options": {"maxfev": 30}},
     )
     assert out.refined.all()
     assert out.phases[out.phase_id[0]].point_group.name == "m-3m"
@@ -211,22 +235,35 @@ def test_shape_mismatches_and_options_refused(sm):
     with pytest.raises(ValueError, match="PCs"):
         reindex(sm.signal, sm.start_xmap, det, sm.master_pattern, 20)
     with pytest.raises(ValueError, match="computes"):
-        reindex(sm.signal, sm.start_xmap, sm.detector, sm.master_pattern, 20, compute=False)
+        reindex(
+            sm.signal, sm.start_xmap, sm.detector, sm.master_pattern, 20, compute=False,
+            method="kikuchipy",
+        )  # fmt: skip
+    with pytest.raises(ValueError, match=r"\['trust_region'\] are not options"):
+        reindex(sm.signal, sm.start_xmap, sm.detector, sm.master_pattern, 20, trust_region=[1] * 3)
+    with pytest.raises(ValueError, match="method must be one of"):
+        reindex(sm.signal, sm.start_xmap, sm.detector, sm.master_pattern, 20, method="lm")
     none = _map_like(sm.start_xmap, phase_id=np.full(20, -1))
     with pytest.raises(ValueError, match="no indexed points"):
         reindex(sm.signal, none, sm.detector, sm.master_pattern, 20)
 
 
 def test_progress_output_only_when_asked(capsys, sm):
-    kw = dict(method_kwargs={"method": "Nelder-Mead", "options": {"maxfev": 5}})
-    reindex(
-        sm.signal, sm.start_xmap, sm.detector, sm.master_pattern, 20, show_progressbar=False, **kw
+    kw = dict(
+        method="kikuchipy", method_kwargs={"method": "Nelder-Mead", "options": {"maxfev": 5}}
     )
-    assert capsys.readouterr().out == ""
+    for extra in ({}, kw):
+        reindex(
+            sm.signal, sm.start_xmap, sm.detector, sm.master_pattern, 20, show_progressbar=False,
+            **extra,
+        )  # fmt: skip
+        assert capsys.readouterr().out == ""
     reindex(
         sm.signal, sm.start_xmap, sm.detector, sm.master_pattern, 20, show_progressbar=True, **kw
     )
     assert "Refining 20 orientation(s)" in capsys.readouterr().out
+    reindex(sm.signal, sm.start_xmap, sm.detector, sm.master_pattern, 20, show_progressbar=True)
+    assert "100% Completed" in capsys.readouterr().out  # dask's bar over the chunks
 
 
 def test_writes_to_ang_and_orix_h5(tmp_path, sm, refined):
