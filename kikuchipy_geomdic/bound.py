@@ -61,7 +61,6 @@ from kikuchipy_geomdic.geometry import (
     UNITS,
     MapGeometry,
     check_parameters,
-    rotation_vectors,
     rotations_from_vectors,
     sample_to_detector_matrix,
 )
@@ -360,7 +359,8 @@ def _steps(columns, steps, rotation_step) -> dict[str, float]:
     if steps:
         check_parameters(list(steps))
         out.update({k: float(v) for k, v in steps.items()})
-    out = {n: out[n] for n in columns}
+    # The angles' columns are built from the PC columns
+    out = {n: out[n] for n in dict.fromkeys((*_PC, *columns))}
     out["rotation"] = np.deg2rad(float(rotation_step))
     if not all(np.isfinite(v) and v > 0 for v in out.values()):
         raise ValueError(f"Finite-difference steps must be positive, not {out}")
@@ -512,7 +512,7 @@ def _fisher(exp, rot, pts, geometry, master_pattern, energy, columns, step, sigm
     # directly, its difference from a rotation column, all that is left once
     # the orientations are free, drowned in the differences' own errors at
     # the kinks of the master pattern's interpolation (the azimuthal bound
-    # changed threefold between steps of 0.005 and 0.04 deg)
+    # changed almost threefold between steps of 0.005 and 0.04 deg)
     local = {}
     for i, name in enumerate(_PC):
         if name in columns or any(n not in _PC for n in columns):
@@ -547,14 +547,19 @@ def _fisher(exp, rot, pts, geometry, master_pattern, energy, columns, step, sigm
 def _angle_derivatives(
     geometry: MapGeometry, pts: np.ndarray, name: str, h: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The crystal rotation (3,) and the PC changes (n, 3) per degree of
-    the angle *name*: at a fixed PC, detector ``M -> M'`` shows what the
-    crystal rotated by ``T = M'^T M`` (``g -> g * T``) shows at ``M``."""
+    """The crystal rotation vector (3,) and the PC changes (n, 3) per
+    degree of the angle *name*: at a fixed PC, detector ``M -> M'`` shows
+    what the crystal rotated by ``T = M'^T M`` (``g -> g * T``) shows at
+    ``M``."""
     plus, minus = geometry.updated({name: h}), geometry.updated({name: -h})
     m0 = sample_to_detector_matrix(*geometry.angles)
-    t = [Rotation.from_matrix(sample_to_detector_matrix(*g.angles).T @ m0) for g in (plus, minus)]
-    c = (rotation_vectors(t[0]) - rotation_vectors(t[1]))[0] / (2 * h)
-    return c, (plus.pc_at(pts) - minus.pc_at(pts)) / (2 * h)
+    vec = []
+    for g in (plus, minus):
+        t = sample_to_detector_matrix(*g.angles).T @ m0
+        # The rotation vector of a small rotation matrix from its skew
+        # part; orix's from_matrix rounds rotations below ~1e-3 deg to none
+        vec.append(np.array([t[2, 1] - t[1, 2], t[0, 2] - t[2, 0], t[1, 0] - t[0, 1]]) / 2)
+    return (vec[0] - vec[1]) / (2 * h), (plus.pc_at(pts) - minus.pc_at(pts)) / (2 * h)
 
 
 def _reduce(fisher: np.ndarray, geo: np.ndarray, nuisance: np.ndarray) -> np.ndarray:
