@@ -176,14 +176,22 @@ class CramerRaoBound:
             cols += f"{'sigma':>10}{'ratio':>8}"
         lines = [head, cols + "  unit"]
         for name, bound in self.sigma.items():
-            line = f"{name:<17}{bound:>10.2e}{self.sigma_known_orientations[name]:>11.2e}"
+            known = self.sigma_known_orientations[name]
+            line = f"{name:<17}" + _number(bound, 10) + _number(known, 11)
             if standard_errors is not None:
                 se = standard_errors.get(name, float("nan"))
+                line += _number(se, 10)
                 ratio = se / bound if np.isfinite(bound) and bound > 0 else float("nan")
-                line += f"{se:>10.2e}{ratio:>8.2f}"
+                line += f"{ratio:>8.2f}" if np.isfinite(ratio) else f"{'-':>8}"
             unit = "deg" if name == TILT_DIFFERENCE else UNITS[name]
             lines.append(line + "  " + ("PC" if unit.startswith("fraction") else unit))
+        if any(not np.isfinite(self.sigma.get(n, 0)) for n in ("tilt", "sample_tilt")):
+            lines.append("tilt and sample_tilt: only their difference is determined")
         return "\n".join(lines)
+
+
+def _number(value: float, width: int) -> str:
+    return f"{value:>{width}.2e}" if np.isfinite(value) else f"{'-':>{width}}"
 
 
 def cramer_rao_bound(
