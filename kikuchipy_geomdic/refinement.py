@@ -307,6 +307,24 @@ class GeometryRefinementResult:
 
         return plotting.plot_convergence(self.history, **kwargs)
 
+    def compare_bound(self, bound) -> str:
+        """Return the standard errors next to a Cramer-Rao bound, with
+        their ratio (1: the data's information limit is reached).
+
+        Parameters
+        ----------
+        bound
+            :class:`~kikuchipy_geomdic.bound.CramerRaoBound` of the same
+            map, e.g. from :func:`~kikuchipy_geomdic.bound.cramer_rao_bound`
+            at :attr:`geometry` with :attr:`xmap` and ``points=``
+            :attr:`points`.
+
+        Returns
+        -------
+        table
+        """
+        return bound.table(self.standard_errors)
+
 
 # --------------------------------------------------------------------- #
 # Input checks and calibration points
