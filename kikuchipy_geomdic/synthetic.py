@@ -20,10 +20,9 @@ one simulator and calibrated with another.
 
 Data and credits
 ----------------
-- ``data/Si_dynamical.npz``, ``data/BaTiO3_dynamical.npz`` and
-  ``data/Ni_dynamical.npz``: computed with ebsdsim 0.2.4 (MIT licence),
-  20 kV, sample tilt 70 deg, Lambert 201 x 201 (BaTiO3 129 x 129). Each is
-  ebsdsim's per-energy-bin master pattern read with
+- ``data/Si_dynamical.npz`` and ``data/Ni_dynamical.npz``: computed with
+  ebsdsim 0.2.4 (MIT licence), 20 kV, sample tilt 70 deg, Lambert
+  201 x 201. Each is ebsdsim's per-energy-bin master pattern read with
   ``kikuchipy.load(path, hemisphere="both")`` and averaged over the energy
   bins with ebsdsim's ``bin_weights`` (``np.average`` in float64, stored
   as float32); the npz keeps the CIF the simulation used. Ni was computed
@@ -31,6 +30,18 @@ Data and credits
   nickel's 3.524 angstrom, so its bands are about 1.4 % wider than real
   Ni's), while the phase attached to it, :func:`phase` "Ni" from
   ``data/Ni.cif``, has a = 3.524 angstrom.
+- ``data/BaTiO3_dynamical.npz``: computed with de-ebsd 0.2.1
+  (GPL-3.0-or-later; Bloch waves, its own Monte Carlo depth profile),
+  20 kV, sample tilt 70 deg, dmin 0.04 nm, Lambert 801 x 801 per
+  hemisphere from ``data/BaTiO3.cif``. The full grid is shipped, with the
+  intensities rounded to float16 (relative error at most 5e-4; patterns
+  projected from it correlate with those from the float32 original to
+  1 - 1e-7): resampled to 401 x 401 it would lose 4 % of the pattern
+  correlation at 120 px. See ``data/README.md``.
+- ``data/BaTiO3_ebsdsim.npz`` (``kind="ebsdsim"``): the coarse BaTiO3
+  master pattern computed with ebsdsim 0.2.4 (MIT) as Si and Ni, Lambert
+  129 x 129, dmin 0.08 nm, from the same CIF; grainy, kept as a second
+  simulator.
 - ``kind="emsoft"``: kikuchipy's shipped EMsoft Ni master pattern
   (``kikuchipy.data.nickel_ebsd_master_pattern_small``, 20 kV, 401 x 401,
   uint8; simulated with EMsoft, Callahan and De Graef, Microsc.
@@ -84,6 +95,20 @@ __all__ = [
 ]
 
 _DATA = resources.files("kikuchipy_geomdic") / "data"
+#: File and simulator of each shipped dynamical master pattern by kind:
+#: "dynamical" is the best one, "ebsdsim" ebsdsim's (the same for Si and Ni)
+_DYNAMICAL_FILES = {
+    "dynamical": {
+        "Si": ("Si_dynamical.npz", "ebsdsim 0.2.4"),
+        "Ni": ("Ni_dynamical.npz", "ebsdsim 0.2.4"),
+        "BaTiO3": ("BaTiO3_dynamical.npz", "de-ebsd 0.2.1"),
+    },
+    "ebsdsim": {
+        "Si": ("Si_dynamical.npz", "ebsdsim 0.2.4"),
+        "Ni": ("Ni_dynamical.npz", "ebsdsim 0.2.4"),
+        "BaTiO3": ("BaTiO3_ebsdsim.npz", "ebsdsim 0.2.4"),
+    },
+}
 _PHASES = {
     "si": "Si",
     "silicon": "Si",
@@ -148,12 +173,14 @@ def master_pattern(
         "Si", "BaTiO3", "Ni" or an orix phase (lattice parameters in
         angstrom).
     kind
-        "dynamical" (package data computed with ebsdsim: Si, BaTiO3 and
-        Ni at 20 kV only), "emsoft" (Ni only: kikuchipy's shipped EMsoft
+        "dynamical" (package data at 20 kV only: Si and Ni computed with
+        ebsdsim, BaTiO3 with de-ebsd), "ebsdsim" (the same for Si and Ni;
+        for BaTiO3 a coarse, grainy 129 x 129 ebsdsim pattern, a second
+        simulator for mismatch tests), "emsoft" (Ni only: kikuchipy's shipped EMsoft
         master pattern, 20 kV, 401 x 401, to simulate "experimental"
         patterns with another simulator than the one used to calibrate),
         "kinematical" (any phase, any energy), or "auto": dynamical
-        (ebsdsim) where available, else kinematical.
+        where available, else kinematical.
     energy
         Beam energy in kV (kinematical only; dynamical and EMsoft ones
         are 20 kV).
@@ -179,15 +206,19 @@ def master_pattern(
     >>> mp = master_pattern("Si")
     >>> mp.projection, mp.hemisphere, mp.metadata.General.title
     ('lambert', 'both', 'Si dynamical (ebsdsim 0.2.4)')
+    >>> master_pattern("BaTiO3").metadata.General.title
+    'BaTiO3 dynamical (de-ebsd 0.2.1)'
+    >>> master_pattern("BaTiO3", kind="ebsdsim").data.shape
+    (2, 129, 129)
     >>> master_pattern("Ni", kind="emsoft").metadata.General.title
     'Ni dynamical (EMsoft, kikuchipy data)'
     """
-    if kind not in ("auto", "dynamical", "kinematical", "emsoft"):
+    if kind not in ("auto", "dynamical", "ebsdsim", "kinematical", "emsoft"):
         raise ValueError(
-            f"kind must be 'auto', 'dynamical', 'kinematical' or 'emsoft', not {kind!r}"
+            f"kind must be 'auto', 'dynamical', 'ebsdsim', 'kinematical' or 'emsoft', not {kind!r}"
         )
     if isinstance(phase_or_name, Phase):
-        if kind in ("dynamical", "emsoft"):
+        if kind in ("dynamical", "ebsdsim", "emsoft"):
             raise ValueError(
                 "Dynamical master patterns exist only for 'Si', 'BaTiO3' and 'Ni' (EMsoft: 'Ni')"
             )
@@ -202,10 +233,10 @@ def master_pattern(
     if kind == "kinematical":
         return _kinematical_named(key, energy, half_size, min_dspacing).deepcopy()
     if energy != 20:
-        if kind == "dynamical":
+        if kind in ("dynamical", "ebsdsim"):
             raise ValueError("The shipped dynamical master patterns are for 20 kV")
         return _kinematical_named(key, energy, half_size, min_dspacing).deepcopy()
-    return _dynamical(key).deepcopy()
+    return _dynamical(key, "ebsdsim" if kind == "ebsdsim" else "dynamical").deepcopy()
 
 
 #: BaTiO3's six ferroelectric variants as pseudo-symmetry operators (left
@@ -854,9 +885,11 @@ def degrade_patterns(
 
 
 @functools.lru_cache(maxsize=4)
-def _dynamical(key: str) -> EBSDMasterPattern:
-    with resources.as_file(_DATA / f"{key}_dynamical.npz") as path:
+def _dynamical(key: str, kind: str = "dynamical") -> EBSDMasterPattern:
+    name, simulator = _DYNAMICAL_FILES[kind][key]
+    with resources.as_file(_DATA / name) as path:
         npz = np.load(path)
+        # BaTiO3 is stored as float16 to keep its 801 x 801 grid small
         data = npz["data"].astype(np.float32)
     n = data.shape[-1]
     axes = [
@@ -867,7 +900,7 @@ def _dynamical(key: str) -> EBSDMasterPattern:
     mp = EBSDMasterPattern(
         data, axes=axes, projection="lambert", hemisphere="both", phase=phase(key)
     )
-    mp.metadata.General.title = f"{key} dynamical (ebsdsim 0.2.4)"
+    mp.metadata.General.title = f"{key} dynamical ({simulator})"
     return mp
 
 

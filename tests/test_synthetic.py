@@ -52,6 +52,37 @@ class TestMasterPattern:
         with pytest.raises(ValueError, match="20 kV"):
             synthetic.master_pattern("Ni", kind="emsoft", energy=15)
 
+    def test_batio3_file(self):
+        from importlib import resources
+
+        data = resources.files("kikuchipy_geomdic") / "data"
+        with resources.as_file(data / "BaTiO3_dynamical.npz") as f:
+            npz = np.load(f)
+            assert npz["data"].shape == (2, 801, 801) and npz["data"].dtype == np.float16
+            assert float(npz["energy"]) == 20
+            assert "de-ebsd 0.2.1 (GPL-3.0-or-later)" in str(npz["source"])
+            # Simulated from the CIF the package's phase is read from
+            assert str(npz["cif"]) == (data / "BaTiO3.cif").read_text()
+        mp = synthetic.master_pattern("BaTiO3")
+        assert mp.metadata.General.title == "BaTiO3 dynamical (de-ebsd 0.2.1)"
+        assert mp.data.dtype == np.float32
+        north, south = mp.data
+        # The square's edges are the equator, seen from both hemispheres
+        for edge in (np.s_[0, :], np.s_[-1, :], np.s_[:, 0], np.s_[:, -1]):
+            assert np.array_equal(north[edge], south[edge])
+        # 4mm has no inversion: the hemispheres differ inside
+        assert np.abs(north - south).mean() > 0.05 * north.std()
+
+    def test_ebsdsim_kind(self):
+        coarse = synthetic.master_pattern("BaTiO3", kind="ebsdsim")
+        assert coarse.data.shape == (2, 129, 129)
+        assert coarse.metadata.General.title == "BaTiO3 dynamical (ebsdsim 0.2.4)"
+        # Si's (and Ni's) dynamical master pattern is ebsdsim's already
+        si = synthetic.master_pattern("Si", kind="ebsdsim")
+        assert np.array_equal(si.data, synthetic.master_pattern("Si").data)
+        with pytest.raises(ValueError, match="20 kV"):
+            synthetic.master_pattern("BaTiO3", kind="ebsdsim", energy=15)
+
     def test_returns_copies(self):
         a = synthetic.master_pattern("Si")
         a.data[:] = 0
