@@ -80,6 +80,7 @@ __all__ = [
     "master_pattern",
     "variant_operators",
     "VARIANT_NAMES",
+    "STRIPE_VARIANTS",
     "perturb_rotations",
     "rotation_vectors",
     "CommonRotation",
@@ -244,6 +245,14 @@ def master_pattern(
 #: the pseudo-cubic frame (identity, 180 deg about [100], -90 and 90 deg
 #: about [010], 90 and -90 deg about [100]).
 VARIANT_NAMES = ("+z", "-z", "+x", "-x", "+y", "-y")
+
+
+#: Variants (indices into :func:`variant_operators`) of the diagonal
+#: stripes of ``synthetic_map(orientations="stripes")``, in order: the
+#: parent (+z) between a 90 deg domain (c along +x) and a 180 deg one
+#: (-z), so that the map has both kinds of domain wall and the parent
+#: covers about half of it.
+STRIPE_VARIANTS = (0, 2, 0, 1)
 
 
 def variant_operators() -> Rotation:
@@ -599,10 +608,17 @@ def synthetic_map(
         Map shape (rows, columns).
     orientations
         "single" (one crystal, orientations scattered by *scatter*),
-        "random" (uniformly random per point) or "variants" (BaTiO3-like
+        "random" (uniformly random per point), "variants" (BaTiO3-like
         diagonal domains, each one of the six variants of
         :func:`variant_operators` applied to one parent orientation,
-        scattered by *scatter*).
+        scattered by *scatter*) or "stripes" (diagonal stripes of the
+        variants :data:`STRIPE_VARIANTS` of one parent, 90 and 180 deg
+        domains, scattered by *scatter*, and a start with the parent's
+        variant everywhere: what an indexer that cannot tell the variants
+        apart returns). ``xmap.prop["variant"]`` is the true variant
+        index *k* of each point (its orientation is
+        ``variant_operators()[k] * parent`` times the scatter),
+        ``start_xmap.prop["variant"]`` that of the start.
     geometry
         True geometry; default :func:`default_geometry` for this map and
         *shape*.
@@ -671,6 +687,17 @@ def synthetic_map(
     (3, 4, 40, 40)
     >>> sm.xmap.shape, sm.detector.navigation_shape
     ((3, 4), (3, 4))
+
+    Stripes of 90 and 180 deg domains, starting from one variant:
+
+    >>> sm = synthetic_map("BaTiO3", (4, 4), "stripes", shape=(40, 40), seed=1)
+    >>> sm.xmap.prop["variant"].reshape(4, 4)
+    array([[0, 0, 2, 2],
+           [0, 2, 2, 0],
+           [2, 2, 0, 0],
+           [2, 0, 0, 1]])
+    >>> int(sm.start_xmap.prop["variant"].max())
+    0
     """
     if isinstance(master_pattern, str):
         master_pattern = globals()["master_pattern"](master_pattern)
@@ -698,24 +725,32 @@ def synthetic_map(
         rot = _random_rotations(n, rng)
     elif orientations == "single":
         rot = perturb_rotations(_random_rotations(1, rng) * Rotation.identity(n), scatter, rng)
-    elif orientations == "variants":
-        variant = _domains(nav).ravel()
+    elif orientations in ("variants", "stripes"):
+        cycle = np.arange(6) if orientations == "variants" else np.array(STRIPE_VARIANTS)
+        variant = cycle[_domains(nav, cycle.size).ravel()]
         parent = _random_rotations(1, rng)
         rot = variant_operators()[variant] * parent
         rot = perturb_rotations(rot, scatter, rng)
         prop["variant"] = variant
     else:
         raise ValueError(
-            f"orientations must be 'single', 'random' or 'variants', not {orientations!r}"
+            "orientations must be 'single', 'random', 'variants' or 'stripes', "
+            f"not {orientations!r}"
         )
     # "indexed" refines the "uncentred" start: same draws for all models
     start_rot = perturb_rotations(rot, orientation_error, rng, centred=start == "centred")
+    start_prop = prop
+    if orientations == "stripes":
+        # The variant operator removed from each start: the parent's variant
+        # with the point's own scatter and start error
+        start_rot = ~variant_operators()[variant] * start_rot
+        start_prop = {"variant": np.zeros_like(variant)}
     noise_seed = int(rng.integers(2**63))
 
     mp_phase = master_pattern.phase.deepcopy()
     dy, dx = geometry.step_sizes
     xmap = _crystal_map(rot, nav, (dy, dx), mp_phase, prop)
-    start_xmap = _crystal_map(start_rot, nav, (dy, dx), mp_phase, prop)
+    start_xmap = _crystal_map(start_rot, nav, (dy, dx), mp_phase, start_prop)
     start_geometry = geometry.updated(perturbation)
     detector = geometry.detector()
     start_detector = start_geometry.detector()
@@ -745,7 +780,7 @@ def synthetic_map(
         start_rot = _refine_orientations(
             signal, start_xmap, start_detector, master_pattern, energy
         )
-        start_xmap = _crystal_map(start_rot, nav, (dy, dx), mp_phase, prop)
+        start_xmap = _crystal_map(start_rot, nav, (dy, dx), mp_phase, start_prop)
     signal.detector = start_detector.deepcopy()
     signal.xmap = start_xmap.deepcopy()
     signal.metadata.General.title = f"synthetic {master_pattern.phase.name} map"
@@ -776,12 +811,12 @@ def _refine_orientations(signal, xmap, detector, master_pattern, energy) -> Rota
     return refined.rotations.flatten()
 
 
-def _domains(nav: tuple[int, int]) -> np.ndarray:
-    # Diagonal stripes, as ferroelectric domain walls often run; all six
-    # variants appear once the map has six or more diagonals
+def _domains(nav: tuple[int, int], n: int = 6) -> np.ndarray:
+    # Diagonal stripes, as ferroelectric domain walls often run; all n
+    # domains appear once the map has n or more diagonals
     rows, cols = np.indices(nav)
     n_diag = nav[0] + nav[1] - 1
-    return ((rows + cols) * 6 // max(n_diag, 1)) % 6
+    return ((rows + cols) * n // max(n_diag, 1)) % n
 
 
 def _crystal_map(rot, nav, steps, mp_phase, prop) -> CrystalMap:
