@@ -20,10 +20,9 @@ one simulator and calibrated with another.
 
 Data and credits
 ----------------
-- ``data/Si_dynamical.npz``, ``data/BaTiO3_dynamical.npz`` and
-  ``data/Ni_dynamical.npz``: computed with ebsdsim 0.2.4 (MIT licence),
-  20 kV, sample tilt 70 deg, Lambert 201 x 201 (BaTiO3 129 x 129). Each is
-  ebsdsim's per-energy-bin master pattern read with
+- ``data/Si_dynamical.npz`` and ``data/Ni_dynamical.npz``: computed with
+  ebsdsim 0.2.4 (MIT licence), 20 kV, sample tilt 70 deg, Lambert
+  201 x 201. Each is ebsdsim's per-energy-bin master pattern read with
   ``kikuchipy.load(path, hemisphere="both")`` and averaged over the energy
   bins with ebsdsim's ``bin_weights`` (``np.average`` in float64, stored
   as float32); the npz keeps the CIF the simulation used. Ni was computed
@@ -31,6 +30,18 @@ Data and credits
   nickel's 3.524 angstrom, so its bands are about 1.4 % wider than real
   Ni's), while the phase attached to it, :func:`phase` "Ni" from
   ``data/Ni.cif``, has a = 3.524 angstrom.
+- ``data/BaTiO3_dynamical.npz``: computed with de-ebsd 0.2.1
+  (GPL-3.0-or-later; Bloch waves, its own Monte Carlo depth profile),
+  20 kV, sample tilt 70 deg, dmin 0.04 nm, Lambert 801 x 801 per
+  hemisphere from ``data/BaTiO3.cif``. The full grid is shipped, with the
+  intensities rounded to float16 (relative error at most 5e-4; patterns
+  projected from it correlate with those from the float32 original to
+  1 - 1e-7): resampled to 401 x 401 it would lose 4 % of the pattern
+  correlation at 120 px. See ``data/README.md``.
+- ``data/BaTiO3_ebsdsim.npz`` (``kind="ebsdsim"``): the coarse BaTiO3
+  master pattern computed with ebsdsim 0.2.4 (MIT) as Si and Ni, Lambert
+  129 x 129, dmin 0.08 nm, from the same CIF; grainy, kept as a second
+  simulator.
 - ``kind="emsoft"``: kikuchipy's shipped EMsoft Ni master pattern
   (``kikuchipy.data.nickel_ebsd_master_pattern_small``, 20 kV, 401 x 401,
   uint8; simulated with EMsoft, Callahan and De Graef, Microsc.
@@ -69,6 +80,7 @@ __all__ = [
     "master_pattern",
     "variant_operators",
     "VARIANT_NAMES",
+    "STRIPE_VARIANTS",
     "perturb_rotations",
     "rotation_vectors",
     "CommonRotation",
@@ -84,6 +96,20 @@ __all__ = [
 ]
 
 _DATA = resources.files("kikuchipy_geomdic") / "data"
+#: File and simulator of each shipped dynamical master pattern by kind:
+#: "dynamical" is the best one, "ebsdsim" ebsdsim's (the same for Si and Ni)
+_DYNAMICAL_FILES = {
+    "dynamical": {
+        "Si": ("Si_dynamical.npz", "ebsdsim 0.2.4"),
+        "Ni": ("Ni_dynamical.npz", "ebsdsim 0.2.4"),
+        "BaTiO3": ("BaTiO3_dynamical.npz", "de-ebsd 0.2.1"),
+    },
+    "ebsdsim": {
+        "Si": ("Si_dynamical.npz", "ebsdsim 0.2.4"),
+        "Ni": ("Ni_dynamical.npz", "ebsdsim 0.2.4"),
+        "BaTiO3": ("BaTiO3_ebsdsim.npz", "ebsdsim 0.2.4"),
+    },
+}
 _PHASES = {
     "si": "Si",
     "silicon": "Si",
@@ -148,12 +174,14 @@ def master_pattern(
         "Si", "BaTiO3", "Ni" or an orix phase (lattice parameters in
         angstrom).
     kind
-        "dynamical" (package data computed with ebsdsim: Si, BaTiO3 and
-        Ni at 20 kV only), "emsoft" (Ni only: kikuchipy's shipped EMsoft
+        "dynamical" (package data at 20 kV only: Si and Ni computed with
+        ebsdsim, BaTiO3 with de-ebsd), "ebsdsim" (the same for Si and Ni;
+        for BaTiO3 a coarse, grainy 129 x 129 ebsdsim pattern, a second
+        simulator for mismatch tests), "emsoft" (Ni only: kikuchipy's shipped EMsoft
         master pattern, 20 kV, 401 x 401, to simulate "experimental"
         patterns with another simulator than the one used to calibrate),
         "kinematical" (any phase, any energy), or "auto": dynamical
-        (ebsdsim) where available, else kinematical.
+        where available, else kinematical.
     energy
         Beam energy in kV (kinematical only; dynamical and EMsoft ones
         are 20 kV).
@@ -179,15 +207,19 @@ def master_pattern(
     >>> mp = master_pattern("Si")
     >>> mp.projection, mp.hemisphere, mp.metadata.General.title
     ('lambert', 'both', 'Si dynamical (ebsdsim 0.2.4)')
+    >>> master_pattern("BaTiO3").metadata.General.title
+    'BaTiO3 dynamical (de-ebsd 0.2.1)'
+    >>> master_pattern("BaTiO3", kind="ebsdsim").data.shape
+    (2, 129, 129)
     >>> master_pattern("Ni", kind="emsoft").metadata.General.title
     'Ni dynamical (EMsoft, kikuchipy data)'
     """
-    if kind not in ("auto", "dynamical", "kinematical", "emsoft"):
+    if kind not in ("auto", "dynamical", "ebsdsim", "kinematical", "emsoft"):
         raise ValueError(
-            f"kind must be 'auto', 'dynamical', 'kinematical' or 'emsoft', not {kind!r}"
+            f"kind must be 'auto', 'dynamical', 'ebsdsim', 'kinematical' or 'emsoft', not {kind!r}"
         )
     if isinstance(phase_or_name, Phase):
-        if kind in ("dynamical", "emsoft"):
+        if kind in ("dynamical", "ebsdsim", "emsoft"):
             raise ValueError(
                 "Dynamical master patterns exist only for 'Si', 'BaTiO3' and 'Ni' (EMsoft: 'Ni')"
             )
@@ -202,10 +234,10 @@ def master_pattern(
     if kind == "kinematical":
         return _kinematical_named(key, energy, half_size, min_dspacing).deepcopy()
     if energy != 20:
-        if kind == "dynamical":
+        if kind in ("dynamical", "ebsdsim"):
             raise ValueError("The shipped dynamical master patterns are for 20 kV")
         return _kinematical_named(key, energy, half_size, min_dspacing).deepcopy()
-    return _dynamical(key).deepcopy()
+    return _dynamical(key, "ebsdsim" if kind == "ebsdsim" else "dynamical").deepcopy()
 
 
 #: BaTiO3's six ferroelectric variants as pseudo-symmetry operators (left
@@ -213,6 +245,14 @@ def master_pattern(
 #: the pseudo-cubic frame (identity, 180 deg about [100], -90 and 90 deg
 #: about [010], 90 and -90 deg about [100]).
 VARIANT_NAMES = ("+z", "-z", "+x", "-x", "+y", "-y")
+
+
+#: Variants (indices into :func:`variant_operators`) of the diagonal
+#: stripes of ``synthetic_map(orientations="stripes")``, in order: the
+#: parent (+z) between a 90 deg domain (c along +x) and a 180 deg one
+#: (-z), so that the map has both kinds of domain wall and the parent
+#: covers about half of it.
+STRIPE_VARIANTS = (0, 2, 0, 1)
 
 
 def variant_operators() -> Rotation:
@@ -571,10 +611,17 @@ def synthetic_map(
         "random" (uniformly random per point), "grains" (a polycrystal:
         Voronoi grains of :data:`GRAIN_POINTS` points on average, random
         orientations scattered by *scatter* within each, property
-        ``grain``) or "variants" (BaTiO3-like
+        ``grain``), "variants" (BaTiO3-like
         diagonal domains, each one of the six variants of
         :func:`variant_operators` applied to one parent orientation,
-        scattered by *scatter*).
+        scattered by *scatter*) or "stripes" (diagonal stripes of the
+        variants :data:`STRIPE_VARIANTS` of one parent, 90 and 180 deg
+        domains, scattered by *scatter*, and a start with the parent's
+        variant everywhere: what an indexer that cannot tell the variants
+        apart returns). ``xmap.prop["variant"]`` is the true variant
+        index *k* of each point (its orientation is
+        ``variant_operators()[k] * parent`` times the scatter),
+        ``start_xmap.prop["variant"]`` that of the start.
     geometry
         True geometry; default :func:`default_geometry` for this map and
         *shape*.
@@ -643,6 +690,17 @@ def synthetic_map(
     (3, 4, 40, 40)
     >>> sm.xmap.shape, sm.detector.navigation_shape
     ((3, 4), (3, 4))
+
+    Stripes of 90 and 180 deg domains, starting from one variant:
+
+    >>> sm = synthetic_map("BaTiO3", (4, 4), "stripes", shape=(40, 40), seed=1)
+    >>> sm.xmap.prop["variant"].reshape(4, 4)
+    array([[0, 0, 2, 2],
+           [0, 2, 2, 0],
+           [2, 2, 0, 0],
+           [2, 0, 0, 1]])
+    >>> int(sm.start_xmap.prop["variant"].max())
+    0
     """
     if isinstance(master_pattern, str):
         master_pattern = globals()["master_pattern"](master_pattern)
@@ -674,25 +732,32 @@ def synthetic_map(
         grain = _grains(nav, rng).ravel()
         rot = perturb_rotations(_random_rotations(grain.max() + 1, rng)[grain], scatter, rng)
         prop["grain"] = grain
-    elif orientations == "variants":
-        variant = _domains(nav).ravel()
+    elif orientations in ("variants", "stripes"):
+        cycle = np.arange(6) if orientations == "variants" else np.array(STRIPE_VARIANTS)
+        variant = cycle[_domains(nav, cycle.size).ravel()]
         parent = _random_rotations(1, rng)
         rot = variant_operators()[variant] * parent
         rot = perturb_rotations(rot, scatter, rng)
         prop["variant"] = variant
     else:
         raise ValueError(
-            "orientations must be 'single', 'random', 'grains' or 'variants', "
+            "orientations must be 'single', 'random', 'grains', 'variants' or 'stripes', "
             f"not {orientations!r}"
         )
     # "indexed" refines the "uncentred" start: same draws for all models
     start_rot = perturb_rotations(rot, orientation_error, rng, centred=start == "centred")
+    start_prop = prop
+    if orientations == "stripes":
+        # The variant operator removed from each start: the parent's variant
+        # with the point's own scatter and start error
+        start_rot = ~variant_operators()[variant] * start_rot
+        start_prop = {"variant": np.zeros_like(variant)}
     noise_seed = int(rng.integers(2**63))
 
     mp_phase = master_pattern.phase.deepcopy()
     dy, dx = geometry.step_sizes
     xmap = _crystal_map(rot, nav, (dy, dx), mp_phase, prop)
-    start_xmap = _crystal_map(start_rot, nav, (dy, dx), mp_phase, prop)
+    start_xmap = _crystal_map(start_rot, nav, (dy, dx), mp_phase, start_prop)
     start_geometry = geometry.updated(perturbation)
     detector = geometry.detector()
     start_detector = start_geometry.detector()
@@ -722,7 +787,7 @@ def synthetic_map(
         start_rot = _refine_orientations(
             signal, start_xmap, start_detector, master_pattern, energy
         )
-        start_xmap = _crystal_map(start_rot, nav, (dy, dx), mp_phase, prop)
+        start_xmap = _crystal_map(start_rot, nav, (dy, dx), mp_phase, start_prop)
     signal.detector = start_detector.deepcopy()
     signal.xmap = start_xmap.deepcopy()
     signal.metadata.General.title = f"synthetic {master_pattern.phase.name} map"
@@ -767,12 +832,12 @@ def _grains(nav: tuple[int, int], rng) -> np.ndarray:
     return d.argmin(axis=1).reshape(nav)
 
 
-def _domains(nav: tuple[int, int]) -> np.ndarray:
-    # Diagonal stripes, as ferroelectric domain walls often run; all six
-    # variants appear once the map has six or more diagonals
+def _domains(nav: tuple[int, int], n: int = 6) -> np.ndarray:
+    # Diagonal stripes, as ferroelectric domain walls often run; all n
+    # domains appear once the map has n or more diagonals
     rows, cols = np.indices(nav)
     n_diag = nav[0] + nav[1] - 1
-    return ((rows + cols) * 6 // max(n_diag, 1)) % 6
+    return ((rows + cols) * n // max(n_diag, 1)) % n
 
 
 def _crystal_map(rot, nav, steps, mp_phase, prop) -> CrystalMap:
@@ -876,9 +941,11 @@ def degrade_patterns(
 
 
 @functools.lru_cache(maxsize=4)
-def _dynamical(key: str) -> EBSDMasterPattern:
-    with resources.as_file(_DATA / f"{key}_dynamical.npz") as path:
+def _dynamical(key: str, kind: str = "dynamical") -> EBSDMasterPattern:
+    name, simulator = _DYNAMICAL_FILES[kind][key]
+    with resources.as_file(_DATA / name) as path:
         npz = np.load(path)
+        # BaTiO3 is stored as float16 to keep its 801 x 801 grid small
         data = npz["data"].astype(np.float32)
     n = data.shape[-1]
     axes = [
@@ -889,7 +956,7 @@ def _dynamical(key: str) -> EBSDMasterPattern:
     mp = EBSDMasterPattern(
         data, axes=axes, projection="lambert", hemisphere="both", phase=phase(key)
     )
-    mp.metadata.General.title = f"{key} dynamical (ebsdsim 0.2.4)"
+    mp.metadata.General.title = f"{key} dynamical ({simulator})"
     return mp
 
 

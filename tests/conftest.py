@@ -17,5 +17,5 @@ def si_mp():
 
 @pytest.fixture(scope="session")
 def bto_mp():
-    """Dynamical BaTiO3 master pattern (package data, coarse)."""
+    """Dynamical BaTiO3 master pattern (package data, de-ebsd, 801 x 801)."""
     return synthetic.master_pattern("BaTiO3", kind="dynamical")

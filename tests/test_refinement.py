@@ -445,12 +445,29 @@ class TestBadInput:
             self._call(sm, jacobian="secant")
 
 
-def test_batio3_wrong_variants_corrected(bto_mp):
+@pytest.mark.parametrize(
+    "kind",
+    [
+        "ebsdsim",
+        pytest.param(
+            "dynamical",
+            marks=pytest.mark.xfail(
+                strict=True,
+                reason="With the sharp de-ebsd master pattern (801 x 801) the joint "
+                "solver's variant choice leaves 6 of 36 points with a wrong 90 or 180 deg "
+                "variant while the PC is right to 2e-5 (measured; a 0.5 or 1 px blur of "
+                "the map does not help)",
+            ),
+        ),
+    ],
+)
+def test_batio3_wrong_variants_corrected(kind):
     # A third of the starting orientations are the wrong 90 deg variant;
     # the joint solver tells the variants apart once the geometry is close
     from orix.quaternion import Rotation
 
-    sm = synthetic.synthetic_map(bto_mp, (6, 6), orientations="variants", shape=(60, 60), seed=0)
+    mp = synthetic.master_pattern("BaTiO3", kind=kind)
+    sm = synthetic.synthetic_map(mp, (6, 6), orientations="variants", shape=(60, 60), seed=0)
     ops = synthetic.variant_operators()
     wrong = np.random.default_rng(0).random(36) < 0.3
     r = sm.start_xmap.rotations.data.copy()

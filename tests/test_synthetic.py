@@ -52,6 +52,37 @@ class TestMasterPattern:
         with pytest.raises(ValueError, match="20 kV"):
             synthetic.master_pattern("Ni", kind="emsoft", energy=15)
 
+    def test_batio3_file(self):
+        from importlib import resources
+
+        data = resources.files("kikuchipy_geomdic") / "data"
+        with resources.as_file(data / "BaTiO3_dynamical.npz") as f:
+            npz = np.load(f)
+            assert npz["data"].shape == (2, 801, 801) and npz["data"].dtype == np.float16
+            assert float(npz["energy"]) == 20
+            assert "de-ebsd 0.2.1 (GPL-3.0-or-later)" in str(npz["source"])
+            # Simulated from the CIF the package's phase is read from
+            assert str(npz["cif"]) == (data / "BaTiO3.cif").read_text()
+        mp = synthetic.master_pattern("BaTiO3")
+        assert mp.metadata.General.title == "BaTiO3 dynamical (de-ebsd 0.2.1)"
+        assert mp.data.dtype == np.float32
+        north, south = mp.data
+        # The square's edges are the equator, seen from both hemispheres
+        for edge in (np.s_[0, :], np.s_[-1, :], np.s_[:, 0], np.s_[:, -1]):
+            assert np.array_equal(north[edge], south[edge])
+        # 4mm has no inversion: the hemispheres differ inside
+        assert np.abs(north - south).mean() > 0.05 * north.std()
+
+    def test_ebsdsim_kind(self):
+        coarse = synthetic.master_pattern("BaTiO3", kind="ebsdsim")
+        assert coarse.data.shape == (2, 129, 129)
+        assert coarse.metadata.General.title == "BaTiO3 dynamical (ebsdsim 0.2.4)"
+        # Si's (and Ni's) dynamical master pattern is ebsdsim's already
+        si = synthetic.master_pattern("Si", kind="ebsdsim")
+        assert np.array_equal(si.data, synthetic.master_pattern("Si").data)
+        with pytest.raises(ValueError, match="20 kV"):
+            synthetic.master_pattern("BaTiO3", kind="ebsdsim", energy=15)
+
     def test_returns_copies(self):
         a = synthetic.master_pattern("Si")
         a.data[:] = 0
@@ -78,6 +109,97 @@ class TestVariants:
             expected = ops[k] * parent
             got = sm.xmap.rotations[v == k]
             assert np.allclose(np.abs((got * ~expected).a), 1, atol=1e-9)
+
+    @pytest.fixture(scope="class")
+    @classmethod
+    def stripes(cls, bto_mp):
+        return synthetic.synthetic_map(
+            bto_mp,
+            (6, 7),
+            orientations="stripes",
+            shape=(32, 32),
+            scatter=0.2,
+            orientation_error=0.3,
+            seed=4,
+        )
+
+    def test_stripes_layout(self, stripes):
+        v = stripes.xmap.prop["variant"].reshape(6, 7)
+        # Along the diagonal the stripes run through STRIPE_VARIANTS in
+        # order, each a band of whole diagonals
+        diag = np.add.outer(np.arange(6), np.arange(7))
+        per_diag = [set(v[diag == d]) for d in range(diag.max() + 1)]
+        assert all(len(x) == 1 for x in per_diag)
+        runs = [x.pop() for x in per_diag]
+        runs = [k for i, k in enumerate(runs) if i == 0 or k != runs[i - 1]]
+        assert runs == list(synthetic.STRIPE_VARIANTS)
+        ops = synthetic.variant_operators()
+        # Both kinds of wall: a 90 deg and a 180 deg domain next to the parent
+        angles = np.rad2deg(ops[np.unique(v)].angle)
+        assert np.allclose(sorted(angles), [0, 90, 180])
+
+    def test_stripes_truth_is_variant_of_parent(self, stripes):
+        ops = synthetic.variant_operators()
+        v = stripes.xmap.prop["variant"]
+        rot = stripes.xmap.rotations
+        # Undoing each point's variant leaves one parent up to the scatter
+        # (0.2 deg RMS per point, so pairs differ by about 0.3 deg RMS)
+        parent = ~ops[v] * rot
+        mis = np.rad2deg((parent * ~parent[0]).angle)
+        assert mis.max() < 1.5
+        # Without undoing it, the domains are 90 or 180 deg away
+        raw = np.rad2deg((rot * ~parent[0]).angle)
+        assert np.all(np.abs(raw - np.rad2deg(ops[v].angle)) < 1.5)
+
+    def test_stripes_start_is_one_variant(self, stripes):
+        ops = synthetic.variant_operators()
+        v = stripes.xmap.prop["variant"]
+        assert not stripes.start_xmap.prop["variant"].any()
+        assert np.array_equal(
+            stripes.signal.xmap.prop["variant"], stripes.start_xmap.prop["variant"]
+        )
+        start = stripes.start_xmap.rotations
+        # The start is the parent's variant of the truth, 0.3 deg RMS off
+        mis = np.rad2deg((start * ~(~ops[v] * stripes.xmap.rotations)).angle)
+        assert 0.15 < np.sqrt(np.mean(mis**2)) < 0.45
+        # so in the 90 and 180 deg domains it is the wrong variant
+        wrong = np.rad2deg((start * ~stripes.xmap.rotations).angle)
+        assert np.all(wrong[v != 0] > 89) and np.all(wrong[v == 0] < 1.5)
+
+    def test_stripes_patterns_show_the_variants(self, bto_mp, stripes):
+        # The map's patterns are simulated with the true variants: they
+        # differ from those of the same orientations in the parent's
+        # variant in the 90 deg domain, and a little in the 180 deg one
+        ops = synthetic.variant_operators()
+        v = stripes.xmap.prop["variant"]
+        data = stripes.signal.data.reshape(v.size, 32, 32)
+        det = stripes.detector
+        assert np.array_equal(data, simulate_patterns(bto_mp, stripes.xmap.rotations, det, 20))
+        one_variant = simulate_patterns(bto_mp, ~ops[v] * stripes.xmap.rotations, det, 20)
+        ncc = _ncc(data, one_variant)
+        assert np.allclose(ncc[v == 0], 1)
+        assert ncc[v == 2].max() < 0.9
+        assert ncc[v == 1].max() < 0.999
+
+    def test_batio3_master_pattern_tells_variants_apart(self, bto_mp):
+        # 120 px patterns at 10 random orientations, realistic detector:
+        # NCC of each variant's pattern with the parent's
+        rng = np.random.default_rng(11)
+        q = rng.normal(size=(10, 4))
+        r = Rotation(q / np.linalg.norm(q, axis=1, keepdims=True))
+        from kikuchipy.detectors import EBSDDetector
+
+        det = EBSDDetector((120, 120), pc=(0.5, 0.3, 0.6), sample_tilt=70)
+        ops = synthetic.variant_operators()
+        p0 = simulate_patterns(bto_mp, r, det, 20)
+        ncc = np.array([_ncc(simulate_patterns(bto_mp, op * r, det, 20), p0) for op in ops[1:]])
+        # 90 deg variants (c axis swapped, c/a = 1.011): measured 0.70-0.80
+        # (mean 0.74); the coarse 129 x 129 ebsdsim pattern gave 0.77-0.80
+        assert ncc[1:].max() < 0.85 and ncc[1:].mean() < 0.8
+        # 180 deg variant (polarity only, dynamical intensities): measured
+        # 0.987-0.994 (mean 0.990; ebsdsim: 0.995). 1 means identical
+        # hemispheres (no polarity), far lower a damaged pattern
+        assert 0.97 < ncc[0].min() and ncc[0].max() < 0.998
 
 
 class TestSyntheticMap:
