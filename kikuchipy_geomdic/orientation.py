@@ -61,6 +61,8 @@ __all__ = [
     "detector_matrix",
     "poor_points",
     "neighbour_seeds",
+    "VariantComparison",
+    "compare_variants",
 ]
 
 #: Smallest side (px) of a binned pattern in the coarse-to-fine schedule:
@@ -132,14 +134,32 @@ class MasterPatternArrays:
             return self
         if sigma not in self._smoothed:
             px = sigma / math.degrees(_SQRT_PI_HALF / self.scale)
-            # Edge pixels are the equator: 'nearest' keeps them from fading
-            up, lo = (
-                ndimage.gaussian_filter(a, px, mode="nearest") for a in (self.upper, self.lower)
-            )
+            up = _smooth_across_equator(self.upper, self.lower, px)
+            lo = _smooth_across_equator(self.lower, self.upper, px)
             self._smoothed[sigma] = MasterPatternArrays(
                 up.astype(np.float32), lo.astype(np.float32), sigma
             )
         return self._smoothed[sigma]
+
+
+def _smooth_across_equator(hemisphere, other, sigma):
+    """Gaussian smoothing of one Lambert hemisphere that continues into the
+    other one across the square's edge (the equator).
+
+    Past an edge of the square the sphere continues in the other
+    hemisphere, mirrored across that edge (the square Lambert projection
+    of a direction just below the equator lands just inside the other
+    square's same edge). Smoothing with any padding of the hemisphere's
+    own pixels puts a false seam there, and patterns that look across the
+    equator (a BaTiO3 90 deg domain, c axis in the sample plane) then
+    pulled Gauss-Newton degrees away from a start 0.4 deg off.
+    """
+    w = min(int(math.ceil(4 * sigma)), hemisphere.shape[0] - 1)
+    big = np.pad(np.asarray(hemisphere, np.float64), w, mode="reflect")
+    ring = np.pad(np.asarray(other, np.float64), w, mode="reflect")
+    inner = (slice(w, w + hemisphere.shape[0]), slice(w, w + hemisphere.shape[1]))
+    ring[inner] = big[inner]
+    return ndimage.gaussian_filter(ring, sigma, mode="nearest")[inner]
 
 
 def master_pattern_arrays(master_pattern: EBSDMasterPattern, energy: float) -> MasterPatternArrays:
@@ -533,6 +553,37 @@ def detector_matrix(detector: EBSDDetector) -> np.ndarray:
     return np.ascontiguousarray((~detector.sample_to_detector).to_matrix().reshape(3, 3))
 
 
+def _stage(patterns, q, pcs, om, arrays, binning, sigma, max_step):
+    """One stage of the schedule: every pattern binned by *binning*, both
+    it and the master pattern smoothed by *sigma* degrees."""
+    n, shape = patterns.shape[0], patterns.shape[1:]
+    b = binning
+    level = bin_pattern(patterns, b, np.float32) if b > 1 else patterns
+    if sigma > 0:
+        # The same blur on both sides, so that the smoothed optimum is the
+        # orientation's (a sharp pattern against a smoothed simulation
+        # pulled it degrees away): sigma in binned pixels at the PC, where
+        # one pixel spans 1 / (pcz * rows) rad
+        px = np.deg2rad(sigma) * float(np.median(pcs[:, 2])) * shape[0] / b
+        level = ndimage.gaussian_filter(level, (0, px, px), mode="nearest")
+    level = np.ascontiguousarray(level.reshape(n, -1), dtype=np.float32)
+    mp = arrays.smoothed(sigma)
+    return _refine_stack(
+        level,
+        np.ascontiguousarray(q),
+        np.ascontiguousarray(pcs),
+        shape[0] // b,
+        shape[1] // b,
+        om,
+        mp.upper,
+        mp.lower,
+        float(mp.scale),
+        MAX_EVALUATIONS[b == 1],
+        np.deg2rad(TOLERANCE if b == 1 else COARSE_TOLERANCE),
+        np.deg2rad(max_step),
+    )
+
+
 def _schedule(shape, levels):
     """(binning, smoothing) of each stage, coarse first."""
     return [(b, s) for b in pyramid_levels(shape, levels) for s in SMOOTHING.get(b, (0.0,))]
@@ -650,36 +701,29 @@ def refine_arrays(
     q = np.ascontiguousarray(quaternions, dtype=np.float64).reshape(n, 4)
     pcs = np.ascontiguousarray(pcs, dtype=np.float64).reshape(n, 3)
     om = np.ascontiguousarray(om, dtype=np.float64)
+    q0 = q
+    schedule = _schedule(shape, levels)
     evaluations = np.zeros(n, dtype=np.float64)
-    ncc = np.full(n, np.nan)
-    conv = np.zeros(n, dtype=bool)
-    for b, sigma in _schedule(shape, levels):
-        level = bin_pattern(patterns, b, np.float32) if b > 1 else patterns
-        if sigma > 0:
-            # The same blur on both sides, so that the smoothed optimum is
-            # the orientation's (a sharp pattern against a smoothed
-            # simulation pulled it degrees away): sigma in binned pixels at
-            # the PC, where one pixel spans 1 / (pcz * rows) rad
-            px = np.deg2rad(sigma) * float(np.median(pcs[:, 2])) * shape[0] / b
-            level = ndimage.gaussian_filter(level, (0, px, px), mode="nearest")
-        level = np.ascontiguousarray(level.reshape(n, -1), dtype=np.float32)
-        mp = arrays.smoothed(sigma)
-        tol = np.deg2rad(TOLERANCE if b == 1 else COARSE_TOLERANCE)
-        q, ncc, k, conv = _refine_stack(
-            level,
-            q,
-            pcs,
-            shape[0] // b,
-            shape[1] // b,
-            om,
-            mp.upper,
-            mp.lower,
-            float(mp.scale),
-            MAX_EVALUATIONS[b == 1],
-            tol,
-            np.deg2rad(max_step),
-        )
+    for b, sigma in schedule:
+        q, ncc, k, conv = _stage(patterns, q, pcs, om, arrays, b, sigma, max_step)
         evaluations += k / b**2
+    if len(schedule) > 1:
+        # The coarse stages never make a start worse: where the start
+        # itself correlates better, the last stage runs from it instead
+        sims = project_arrays(q0, pcs, om, arrays, shape).reshape(n, -1)
+        start = (
+            _standardise(sims) * _standardise(patterns.reshape(n, -1).astype(np.float64))
+        ).mean(axis=1)
+        evaluations += 1
+        worse = np.flatnonzero(start > ncc)
+        if worse.size:
+            q2, ncc2, k2, conv2 = _stage(
+                patterns[worse], q0[worse], pcs[worse], om, arrays, 1, 0.0, max_step
+            )
+            better = ncc2 > ncc[worse]
+            q[worse[better]], ncc[worse[better]] = q2[better], ncc2[better]
+            conv[worse[better]] = conv2[better]
+            evaluations[worse] += k2
     # One sign per rotation, as orix writes and reads them back (a >= 0)
     q = np.where(q[:, :1] < 0, -q, q)
     return OrientationResult(Rotation(q), ncc, evaluations, conv)
@@ -882,3 +926,141 @@ def neighbour_seeds(
                 if all(abs(float(np.dot(q, s))) < cos_half for s in seeds):
                     seeds.append(q)
     return np.array(seeds).reshape(-1, 4)
+
+
+# --------------------------------------------------------------------- #
+# Pseudo-symmetric variants
+# --------------------------------------------------------------------- #
+
+
+@dataclass(frozen=True)
+class VariantComparison:
+    """Which of a point's refined variant candidates its pattern shows.
+
+    Attributes
+    ----------
+    variant
+        Index (N,) of the kept candidate.
+    confidence
+        Confidence index (N,) of the kept candidate (see
+        :func:`compare_variants`): about its NCC when the pattern decides
+        clearly between it and every rival, 0 when it does not decide.
+    margin
+        Cross-variant margin (N,): the kept candidate's confidence index
+        minus the best other candidate's.
+    indices
+        Confidence index (N, M) of every candidate.
+    ncc
+        Plain NCC (N, M) of every candidate.
+    """
+
+    variant: np.ndarray
+    confidence: np.ndarray
+    margin: np.ndarray
+    indices: np.ndarray
+    ncc: np.ndarray
+
+
+def _standardise(a: np.ndarray) -> np.ndarray:
+    a = a - a.mean(axis=-1, keepdims=True)
+    sd = a.std(axis=-1, keepdims=True)
+    return a / np.where(sd > 0, sd, 1.0)
+
+
+def compare_variants(
+    patterns: np.ndarray,
+    quaternions: np.ndarray,
+    pcs: np.ndarray,
+    om: np.ndarray,
+    arrays: MasterPatternArrays,
+) -> VariantComparison:
+    r"""Compare the refined variant candidates of each pattern.
+
+    Plain NCC barely tells 180 deg (polarity) variants apart: their
+    simulated patterns correlate at 0.99, so their NCCs with any pattern
+    differ in the third decimal. The comparison therefore looks only along
+    where two candidates differ. With ``S_a``, ``S_b`` the standardised
+    simulations of candidates a and b, ``E`` the standardised pattern and
+    ``rho_ab`` the correlation of ``S_a`` with ``S_b``, the pair's margin
+    is the correlation of ``E`` with their difference, normalised:
+
+    .. math::
+
+        m_{ab} = \frac{\mathrm{NCC}_a - \mathrm{NCC}_b}{1 - \rho_{ab}}
+               = \frac{E \cdot (S_a - S_b)}{\tfrac{1}{2} |S_a - S_b|^2}.
+
+    If the pattern is ``c S_a`` plus noise (NCC ``c``), ``m_ab`` is ``c``
+    in expectation, whatever ``rho_ab``; for ``c S_b`` it is ``-c``; its
+    noise grows as the two simulations become alike. The confidence
+    index of candidate a is its worst margin, ``CI_a = min_b m_ab``: about
+    the NCC when the pattern decides between a and every rival, near 0
+    when a rival is as likely. The kept candidate has the largest CI (the
+    largest NCC: only it can have a positive CI; the sign of
+    ``NCC_a - NCC_b`` is the matched-filter test, optimal under white
+    noise), and the cross-variant margin is its CI minus the next largest.
+
+    Parameters
+    ----------
+    patterns
+        Patterns (N, rows, columns).
+    quaternions
+        Refined candidates (N, M, 4) per pattern, e.g. from each variant's
+        start.
+    pcs
+        Bruker PCs (N, 3).
+    om
+        :func:`detector_matrix` of the detector.
+    arrays
+        :func:`master_pattern_arrays`.
+
+    Returns
+    -------
+    comparison
+        :class:`VariantComparison`.
+
+    Examples
+    --------
+    Two BaTiO3 180 deg variants of one pattern: the right one is kept,
+    with a confidence index near its NCC.
+
+    >>> import numpy as np
+    >>> from kikuchipy.detectors import EBSDDetector
+    >>> from orix.quaternion import Rotation
+    >>> from kikuchipy_geomdic import synthetic
+    >>> from kikuchipy_geomdic.orientation import (
+    ...     compare_variants, detector_matrix, master_pattern_arrays, project_patterns)
+    >>> mp = synthetic.master_pattern("BaTiO3")
+    >>> det = EBSDDetector((60, 60), pc=[0.5, 0.3, 0.6], sample_tilt=70)
+    >>> r = Rotation.from_euler(np.deg2rad([[10, 30, 50]]))
+    >>> flipped = synthetic.variant_operators()[1] * r
+    >>> pattern = project_patterns(flipped, det, mp)
+    >>> q = np.stack([r.data, flipped.data], axis=1)
+    >>> arrays = master_pattern_arrays(mp, 20)
+    >>> c = compare_variants(pattern, q, det.pc.reshape(-1, 3), detector_matrix(det), arrays)
+    >>> int(c.variant[0]), round(float(c.confidence[0]), 3), bool(c.ncc[0, 0] > 0.95)
+    (1, 1.0, True)
+    """
+    patterns = np.asarray(patterns)
+    n = patterns.shape[0]
+    quaternions = np.asarray(quaternions, dtype=np.float64).reshape(n, -1, 4)
+    m = quaternions.shape[1]
+    shape = patterns.shape[1:]
+    pcs = np.asarray(pcs, dtype=np.float64).reshape(n, 3)
+    sims = project_arrays(quaternions.reshape(-1, 4), np.repeat(pcs, m, axis=0), om, arrays, shape)
+    s = _standardise(sims.reshape(n, m, -1))
+    e = _standardise(np.asarray(patterns, dtype=np.float64).reshape(n, 1, -1))
+    ncc = (s * e).mean(axis=-1)
+    rho = np.einsum("npk,nqk->npq", s, s) / s.shape[-1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        margins = (ncc[:, :, None] - ncc[:, None, :]) / (1 - rho)
+    # One pattern twice (two starts refined to one orientation): no rivalry
+    margins = np.where(1 - rho < 1e-9, 0.0, margins)
+    idx = np.arange(m)
+    margins[:, idx, idx] = np.inf
+    ci = margins.min(axis=2) if m > 1 else ncc.copy()
+    order = np.argsort(-ci, axis=1, kind="stable")
+    variant = order[:, 0]
+    rows = np.arange(n)
+    confidence = ci[rows, variant]
+    margin = confidence - ci[rows, order[:, 1]] if m > 1 else np.zeros(n)
+    return VariantComparison(variant, confidence, margin, ci, ncc)

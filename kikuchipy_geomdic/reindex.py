@@ -46,6 +46,7 @@ from kikuchipy_geomdic.maps import check_signal_and_detector, check_whole_map, n
 from kikuchipy_geomdic.orientation import (
     MAX_STEP,
     MasterPatternArrays,
+    compare_variants,
     detector_matrix,
     master_pattern_arrays,
     neighbour_seeds,
@@ -120,9 +121,13 @@ GEOMDIC_OPTIONS = ("levels", "max_step")
 #: a chunk's Python overhead is small, small enough for a progress bar.
 CHUNK_PATTERNS = 256
 
-# Columns of the per-point output of a chunk
-_Q, _SCORE, _EVALS, _CONV, _RMS = slice(0, 4), 4, 5, 6, 7
-_N_OUT = 8
+# Columns of the per-point output of a chunk; then one NCC per candidate
+_Q, _SCORE, _EVALS, _CONV, _RMS, _VARIANT, _CONF, _MARGIN = slice(0, 4), 4, 5, 6, 7, 8, 9, 10
+_NCC = 11
+
+
+def _width(ops) -> int:
+    return _NCC + 1 + (0 if ops is None else len(ops))
 
 
 def reindex(
@@ -135,6 +140,7 @@ def reindex(
     phase: str | int | None = None,
     navigation_mask: np.ndarray | None = None,
     method: str = "geomdic",
+    pseudo_symmetry_ops: Rotation | None = None,
     reseed: bool = True,
     dic_rms: bool = False,
     show_progressbar: bool | None = None,
@@ -170,6 +176,15 @@ def reindex(
         reaches kikuchipy's optimum with far fewer projections.
         "kikuchipy": kikuchipy's
         :meth:`~kikuchipy.signals.EBSD.refine_orientation`.
+    pseudo_symmetry_ops
+        Operators of a material's pseudo-symmetric variants (crystal
+        frame, acting as ``op * rotation``, e.g.
+        ``synthetic.variant_operators()[1:]`` for BaTiO3). Every point is
+        refined from its start and from each variant of it, and the
+        variant its pattern shows is kept (with ``method="geomdic"``:
+        :func:`~kikuchipy_geomdic.orientation.compare_variants`, with a
+        variant-sensitive confidence index and the cross-variant margin;
+        with ``method="kikuchipy"``: kikuchipy's best NCC).
     reseed
         ``method="geomdic"`` only: refine the points that score poorly
         for where they are (:func:`~kikuchipy_geomdic.orientation.poor_points`)
@@ -207,7 +222,11 @@ def reindex(
           not trust it), ``iterations`` (pattern projections, in
           full-resolution equivalents), ``reseeded`` (1 where a
           neighbour's orientation gave the kept result) and, with
-          *dic_rms*, ``dic_rms`` (RMS DIC displacement in pixels);
+          *dic_rms*, ``dic_rms`` (RMS DIC displacement in pixels); with
+          *pseudo_symmetry_ops*, ``variant`` (0: as given, k: operator
+          k - 1 applied), ``confidence`` (the kept variant's
+          variant-sensitive confidence index), ``cross_variant_margin``
+          and ``variant_score_k`` (NCC of each candidate);
         - "kikuchipy": ``num_evals`` and, with ``pseudo_symmetry_ops``,
           ``pseudo_symmetry_index``.
 
@@ -276,6 +295,8 @@ def reindex(
         raise ValueError("No point of the map can be refined (none indexed with the phase)")
     mp_phase = master_pattern.phase.deepcopy()
     if method == "kikuchipy":
+        if pseudo_symmetry_ops is not None:
+            refine_kwargs["pseudo_symmetry_ops"] = pseudo_symmetry_ops
         return _reindex_kikuchipy(
             signal, xmap, detector, master_pattern, energy, todo, phase_id, mp_phase,
             show_progressbar, refine_kwargs,
@@ -290,6 +311,7 @@ def reindex(
         master_pattern,
         energy,
         todo=flat,
+        pseudo_symmetry_ops=pseudo_symmetry_ops,
         reseed=reseed,
         dic_rms=dic_rms,
         show_progressbar=show_progressbar,
@@ -306,6 +328,12 @@ def reindex(
     }
     if dic_rms:
         prop["dic_rms"] = np.where(done, out["dic_rms"], np.nan)
+    if pseudo_symmetry_ops is not None:
+        prop["variant"] = np.where(done, out["variant"], 0)
+        prop["confidence"] = np.where(done, out["confidence"], 0.0)
+        prop["cross_variant_margin"] = np.where(done, out["cross_variant_margin"], 0.0)
+        for k, v in enumerate(out["variant_scores"].T):
+            prop[f"variant_score_{k}"] = np.where(done, v, 0.0)
     return _merge(xmap, out["rotations"], done, bad, prop, phase_id, mp_phase)
 
 
@@ -378,6 +406,7 @@ def refine_map(
     reseed: bool = True,
     dic_rms: bool = False,
     show_progressbar: bool = False,
+    pseudo_symmetry_ops: Rotation | None = None,
     levels=None,
     max_step: float = MAX_STEP,
 ) -> dict[str, np.ndarray]:
@@ -406,6 +435,9 @@ def refine_map(
         Measure the RMS DIC displacement at the refined orientations.
     show_progressbar
         Show dask's progress bar over the chunks.
+    pseudo_symmetry_ops
+        Operators (crystal frame, ``op * rotation``) of the variants to
+        try at every point besides its start.
     levels, max_step
         Of :func:`~kikuchipy_geomdic.orientation.refine_patterns`.
 
@@ -414,8 +446,12 @@ def refine_map(
     result
         Dict of flat arrays (n,): ``rotations`` (n, 4), ``scores``,
         ``iterations``, ``converged`` (bool), ``reseeded`` (bool) and
-        ``dic_rms`` (NaN without *dic_rms*); points not to do keep their
-        rotation with NaN scores.
+        ``dic_rms`` (NaN without *dic_rms*), ``variant`` (0: the start's,
+        k: ``pseudo_symmetry_ops[k - 1]`` applied), ``confidence``,
+        ``cross_variant_margin`` and ``variant_scores`` (n, K + 1) (NCC
+        per candidate) of
+        :func:`~kikuchipy_geomdic.orientation.compare_variants`; points
+        not to do keep their rotation with NaN scores.
 
     Examples
     --------
@@ -472,14 +508,18 @@ def refine_map(
     qd = da.from_array(q.reshape(rows, cols, 4), chunks=chunks + ((4,),))
     pd = da.from_array(pcs.reshape(rows, cols, 3), chunks=chunks + ((3,),))
     td = da.from_array(todo.reshape(rows, cols), chunks=chunks)
-    options = dict(arrays=arrays, om=om, levels=levels, max_step=max_step, dic_rms=dic_rms)
+    ops = None if pseudo_symmetry_ops is None else _operators(pseudo_symmetry_ops)
+    width = _width(ops)
+    options = dict(
+        arrays=arrays, om=om, levels=levels, max_step=max_step, dic_rms=dic_rms, ops=ops
+    )
     graph = da.blockwise(
         _refine_block, "ijk",
         d, "ijrc", qd, "ijq", pd, "ijp", td, "ij",
-        new_axes={"k": _N_OUT}, concatenate=True, dtype=np.float64, **options,
+        new_axes={"k": width}, concatenate=True, dtype=np.float64, **options,
     )  # fmt: skip
     with _progress(show_progressbar):
-        out = np.asarray(dask.compute(graph)[0]).reshape(n, _N_OUT)
+        out = np.asarray(dask.compute(graph)[0]).reshape(n, width)
 
     reseeded = np.zeros(n, dtype=bool)
     if reseed:
@@ -493,7 +533,34 @@ def refine_map(
         "converged": (out[:, _CONV] > 0) & ~poor & todo,
         "reseeded": reseeded,
         "dic_rms": out[:, _RMS],
+        "variant": out[:, _VARIANT].astype(np.int64),
+        "confidence": out[:, _CONF],
+        "cross_variant_margin": out[:, _MARGIN],
+        "variant_scores": out[:, _NCC:],
     }
+
+
+def _operators(ops) -> np.ndarray:
+    """Pseudo-symmetry operators as quaternions (K, 4)."""
+    q = np.asarray(Rotation(ops).flatten().data, dtype=np.float64)
+    if q.shape[0] == 0:
+        raise ValueError("pseudo_symmetry_ops is empty")
+    return q
+
+
+def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton products of quaternions (..., 4) (broadcast)."""
+    a0, a1, a2, a3 = np.moveaxis(a, -1, 0)
+    b0, b1, b2, b3 = np.moveaxis(b, -1, 0)
+    return np.stack(
+        [
+            a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3,
+            a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
+            a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1,
+            a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0,
+        ],
+        axis=-1,
+    )
 
 
 def _progress(show: bool):
@@ -504,35 +571,62 @@ def _progress(show: bool):
     return ProgressBar()
 
 
-def _refine_points(patterns, q, pcs, arrays, om, levels, max_step, dic_rms) -> np.ndarray:
-    """The output rows (k, _N_OUT) of k patterns refined from starts *q*."""
+def _refine_points(patterns, q, pcs, arrays, om, levels, max_step, dic_rms, ops) -> np.ndarray:
+    """The output rows (k, width) of k patterns refined from starts *q*:
+    with pseudo-symmetry *ops*, from each variant of the start too, the
+    variant kept by :func:`~kikuchipy_geomdic.orientation.compare_variants`."""
     k = patterns.shape[0]
-    out = np.full((k, _N_OUT), np.nan)
-    res = refine_arrays(patterns, q, pcs, om, arrays, levels, max_step)
-    out[:, _Q] = res.rotations.data
-    out[:, _SCORE] = res.scores
-    out[:, _EVALS] = res.evaluations
-    out[:, _CONV] = res.converged
+    candidates = q[:, None, :]
+    if ops is not None:
+        # Crystal-frame operators act on the left (op * rotation)
+        variants = _qmul(ops[None, :, :], q[:, None, :])
+        candidates = np.concatenate([candidates, variants], axis=1)
+    m = candidates.shape[1]
+    out = np.full((k, _width(ops)), np.nan)
+    res = refine_arrays(
+        np.repeat(patterns, m, axis=0),
+        candidates.reshape(-1, 4),
+        np.repeat(pcs, m, axis=0),
+        om,
+        arrays,
+        levels,
+        max_step,
+    )
+    rq = res.rotations.data.reshape(k, m, 4)
+    if m > 1:
+        cmp = compare_variants(patterns, rq, pcs, om, arrays)
+        kept = cmp.variant
+        out[:, _CONF], out[:, _MARGIN], out[:, _NCC:] = cmp.confidence, cmp.margin, cmp.ncc
+    else:
+        kept = np.zeros(k, dtype=np.int64)
+        out[:, _CONF], out[:, _MARGIN], out[:, _NCC] = res.scores, 0.0, res.scores
+    rows = np.arange(k)
+    out[:, _Q] = rq[rows, kept]
+    out[:, _SCORE] = res.scores.reshape(k, m)[rows, kept]
+    out[:, _EVALS] = res.evaluations.reshape(k, m).sum(axis=1)
+    out[:, _CONV] = res.converged.reshape(k, m)[rows, kept]
+    out[:, _VARIANT] = kept
     if dic_rms:
         out[:, _RMS] = _dic_rms(patterns, out[:, _Q], pcs, om, arrays)
     return out
 
 
-def _refine_block(patterns, q, pcs, todo, *, arrays, om, levels, max_step, dic_rms):
-    """One dask chunk: patterns (r, c, rows, cols) -> (r, c, _N_OUT)."""
+def _refine_block(patterns, q, pcs, todo, *, arrays, om, levels, max_step, dic_rms, ops):
+    """One dask chunk: patterns (r, c, rows, cols) -> (r, c, width)."""
     r, c = q.shape[:2]
-    out = np.full((r * c, _N_OUT), np.nan)
+    out = np.full((r * c, _width(ops)), np.nan)
     out[:, _Q] = q.reshape(-1, 4)
     out[:, _EVALS] = 0
     out[:, _CONV] = 0
+    out[:, _VARIANT] = 0
     flat = todo.ravel()
     if flat.any():
         p = patterns.reshape((r * c,) + patterns.shape[2:])[flat]
         out[flat] = _refine_points(
             p, q.reshape(-1, 4)[flat], pcs.reshape(-1, 3)[flat], arrays, om, levels, max_step,
-            dic_rms,
+            dic_rms, ops,
         )  # fmt: skip
-    return out.reshape(r, c, _N_OUT)
+    return out.reshape(r, c, -1)
 
 
 def _dic_rms(patterns, q, pcs, om, arrays) -> np.ndarray:
