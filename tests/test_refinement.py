@@ -449,16 +449,9 @@ class TestBadInput:
     "kind",
     [
         "ebsdsim",
-        pytest.param(
-            "dynamical",
-            marks=pytest.mark.xfail(
-                strict=True,
-                reason="With the sharp de-ebsd master pattern (801 x 801) the joint "
-                "solver's variant choice leaves 6 of 36 points with a wrong 90 or 180 deg "
-                "variant while the PC is right to 2e-5 (measured; a 0.5 or 1 px blur of "
-                "the map does not help)",
-            ),
-        ),
+        # The de-ebsd pattern is sharp: unrefined candidates chose wrong
+        # variants at 6 of 36 points before best_variants refined each
+        "dynamical",
     ],
 )
 def test_batio3_wrong_variants_corrected(kind):
