@@ -404,3 +404,58 @@ def test_cli_scheduler_option_runs_on_the_cluster(tmp_path, small, client, capsy
     out = orix_io.load(str(tmp_path / "o" / "xmap_refined.h5"))
     # The start orientations went through an orix h5 file (Euler angles)
     np.testing.assert_allclose(out.rotations.data, serial.rotations.data, rtol=0, atol=1e-12)
+
+
+# --------------------------------------------------------------------- #
+# Misindexed starts and pseudo-symmetric variants (method="geomdic")
+# --------------------------------------------------------------------- #
+
+
+def test_misindexed_points_are_reseeded_or_flagged(si_mp):
+    """A polycrystal whose starts are 1 deg off, a tenth of them
+    misindexed (random orientations): none stays wrong unflagged."""
+    sm = synthetic.synthetic_map(
+        si_mp, (10, 10), orientations="grains", shape=(60, 60), dose=300, seed=2
+    )
+    rng = np.random.default_rng(0)
+    q = synthetic.perturb_rotations(sm.xmap.rotations, 1.0, rng).data.copy()
+    wrong = rng.choice(100, 10, replace=False)
+    q[wrong] = Rotation(rng.normal(size=(10, 4))).data  # uniformly random, normalised
+    start = _map_like(sm.xmap, quats=q)
+    assert (misorientation(start, sm.xmap)[wrong] > 10).all()  # truly misindexed
+    out = reindex(sm.signal, start, sm.detector, sm.master_pattern, 20, show_progressbar=False)
+    err = misorientation(out, sm.xmap)
+    ok = out.converged.astype(bool)
+    assert not (ok & (err > 1)).any()  # nothing wrong is left unflagged
+    assert (~ok).sum() <= 3
+    assert out.reseeded[wrong].sum() >= 7  # the neighbours fixed them
+    assert err[ok].mean() < MISORIENTATION_TOL
+    # kikuchipy's refiner from the same starts keeps them wrong, unflagged
+    nm = reindex(
+        sm.signal, start, sm.detector, sm.master_pattern, 20, method="kikuchipy",
+        show_progressbar=False,
+    )  # fmt: skip
+    assert (misorientation(nm, sm.xmap)[wrong] > 1).sum() >= 8
+
+
+def test_pseudo_symmetric_variants_told_apart(bto_mp):
+    """A BaTiO3 stripe-domain map (base, 90 and 180 deg domains) started
+    with the parent's variant everywhere: every point gets its variant."""
+    sm = synthetic.synthetic_map(
+        bto_mp, (7, 7), orientations="stripes", shape=(60, 60), dose=300, seed=1,
+        perturbation={},
+    )  # fmt: skip
+    truth = sm.xmap.prop["variant"]
+    assert set(np.unique(truth)) >= {0, 1, 2}
+    ops = synthetic.variant_operators()[1:]
+    out = reindex(
+        sm.signal, sm.start_xmap, sm.detector, bto_mp, 20, pseudo_symmetry_ops=ops,
+        show_progressbar=False,
+    )  # fmt: skip
+    np.testing.assert_array_equal(out.variant, truth)
+    assert misorientation(out, sm.xmap).max() < 0.05
+    assert (out.cross_variant_margin > 0).all()
+    # The confidence index is on the NCC's scale where the data decide
+    assert np.median(out.confidence / out.scores) > 0.7
+    scores = np.stack([out.prop[f"variant_score_{k}"] for k in range(6)], axis=1)
+    np.testing.assert_allclose(scores[np.arange(truth.size), truth], out.scores)
