@@ -5,8 +5,9 @@ geometry, starting orientations 0.3 deg off) is simulated lazily and
 written chunk by chunk to a kikuchipy h5ebsd file as 8-bit patterns, as a
 microscope would write it. The file is then opened lazily and every
 orientation is refined with the true (calibrated) detector, one PC per
-pattern, by :func:`kikuchipy_geomdic.reindex.reindex` (kikuchipy's
-``refine_orientation`` through dask).
+pattern, by :func:`kikuchipy_geomdic.reindex.reindex` through dask
+(``--method geomdic``, the default: this package's solver; ``--method
+kikuchipy``: kikuchipy's ``refine_orientation``).
 
 Each stage runs in its own process, so the peak resident memory reported
 (``ru_maxrss``) is that stage's alone; the baseline stage only imports the
@@ -18,6 +19,7 @@ Usage::
 
     python benchmarks/bench_reindex.py                  # 200 x 200, 60 x 60
     python benchmarks/bench_reindex.py --rows 50 --cols 50 --json out.json
+    python benchmarks/bench_reindex.py --rows 50 --cols 50 --method kikuchipy
 
 Run it alone on the machine: it uses every core dask gets.
 """
@@ -106,7 +108,9 @@ def stage_reindex(args) -> None:
     mp = synthetic.master_pattern("Si")
     t0 = time.perf_counter()
     with dask.config.set(num_workers=args.workers) if args.workers else _null():
-        out = reindex(signal, start, det, mp, 20, show_progressbar=not args.quiet)
+        out = reindex(
+            signal, start, det, mp, 20, method=args.method, show_progressbar=not args.quiet
+        )
     seconds = time.perf_counter() - t0
     mis = np.rad2deg((out.rotations * ~truth.rotations).angle)
     mis0 = np.rad2deg((start.rotations * ~truth.rotations).angle)
@@ -114,6 +118,8 @@ def stage_reindex(args) -> None:
         seconds=round(seconds, 1),
         patterns=int(out.size),
         patterns_per_second=round(out.size / seconds, 1),
+        method=args.method,
+        flagged=int((out.prop.get("converged", np.ones(out.size)) == 0).sum()),
         still_lazy=bool(signal._lazy),
         chunks=str(signal.data.chunksize),
         mean_ncc=round(float(out.scores.mean()), 5),
@@ -148,6 +154,7 @@ def _run_stage(name: str, args) -> dict:
         "--workdir",
         args.workdir,
     ]
+    cmd += ["--method", args.method]
     if args.workers:
         cmd += ["--workers", str(args.workers)]
     if args.quiet:
@@ -172,6 +179,9 @@ def main(argv=None) -> int:
     p.add_argument("--size", type=int, default=60, help="pattern side in px")
     p.add_argument("--workdir", help="folder for the map file (default: a temporary one)")
     p.add_argument("--workers", type=int, help="dask threads (default: dask's)")
+    p.add_argument(
+        "--method", choices=("geomdic", "kikuchipy"), default="geomdic", help="reindex method"
+    )
     p.add_argument("--json", help="also write the results to this JSON file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--stage", choices=STAGES, help=argparse.SUPPRESS)

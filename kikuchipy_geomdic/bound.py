@@ -18,9 +18,10 @@ the nuisances: a small rotation of its crystal (``g -> g * T``, as the
 refinement updates orientations), ``a_i`` and ``b_i``. With Gaussian
 white noise of variance ``sigma_i^2`` the Fisher information of pattern
 ``i`` is ``J_i^T J_i / sigma_i^2``, ``J_i`` the derivatives of the model
-by every unknown (central differences through
-:class:`~kikuchipy_geomdic.geometry.MapGeometry`, the per-point detector
-and :func:`~kikuchipy_geomdic.simulation.simulate_patterns`). Each
+by every unknown (:func:`~kikuchipy_geomdic.jacobian.intensity_jacobian`:
+analytic for the rotation, central differences of each pattern's PC,
+and a detector angle as the crystal rotation plus the change of the PC
+field it amounts to). Each
 pattern's nuisances are eliminated by a Schur complement, the reduced
 matrices summed over the patterns and inverted: the square roots of the
 diagonal are the bound.
@@ -61,21 +62,25 @@ from kikuchipy_geomdic.geometry import (
     UNITS,
     MapGeometry,
     check_parameters,
-    rotations_from_vectors,
-    sample_to_detector_matrix,
 )
+from kikuchipy_geomdic.jacobian import intensity_jacobian
 from kikuchipy_geomdic.maps import flat_index, navigation_shape
+from kikuchipy_geomdic.orientation import master_pattern_arrays
 from kikuchipy_geomdic.refinement import TILT_DIFFERENCE, calibration_points
-from kikuchipy_geomdic.simulation import check_master_pattern, simulate_patterns
+from kikuchipy_geomdic.simulation import check_master_pattern
 
-__all__ = ["CramerRaoBound", "cramer_rao_bound", "BOUND_STEPS", "ROTATION_STEP"]
+__all__ = ["CramerRaoBound", "cramer_rao_bound", "BOUND_STEPS"]
 
 #: Central-difference step per geometry parameter (PC fractions, degrees).
-#: A PC step of 1e-4 moves the features of a 120 px pattern by 0.012 px:
-#: small against any curvature of the simulation, large against its float32
-#: round-off (measured on a 4 x 4 Si map of 60 px: every bound changed by
-#: at most 1 % between steps eight times apart, 5e-5 and 4e-4 with angle
-#: and rotation steps of 0.005 and 0.04 deg).
+#: A PC step of 1e-4 moves the features of a 120 px pattern by 0.012 px,
+#: on the scale of the rotation step
+#: (:data:`~kikuchipy_geomdic.jacobian.ROTATION_STEP`): measured on a
+#: 4 x 4 Si map of 48 px, the PC bounds changed by 0.1-0.2 % between PC
+#: steps of 5e-5 and 1e-4 and fell by 8 % at 4e-4 (larger steps average
+#: over the kinks of the master pattern's bilinear interpolation, unlike
+#: the rotation columns they are reduced against); the angle steps (0.01
+#: or 0.04 deg) change nothing, the angles' columns being built from the
+#: rotation and PC columns.
 BOUND_STEPS = {
     "pcx": 1e-4,
     "pcy": 1e-4,
@@ -85,9 +90,6 @@ BOUND_STEPS = {
     "sample_tilt": 0.01,
     "twist": 0.01,
 }
-
-#: Central-difference step (degrees) of the rotation of each crystal.
-ROTATION_STEP = 0.01
 
 #: Memory budget (bytes) of one chunk's derivatives, float64.
 MAX_BYTES = 128 * 2**20
@@ -205,7 +207,6 @@ def cramer_rao_bound(
     parameters: Sequence[str] = DEFAULT_PARAMETERS,
     noise: float | np.ndarray | None = None,
     steps: Mapping[str, float] | None = None,
-    rotation_step: float = ROTATION_STEP,
     max_bytes: int = MAX_BYTES,
 ) -> CramerRaoBound:
     """Return the Cramer-Rao bound of the geometry parameters of a map.
@@ -256,8 +257,6 @@ def cramer_rao_bound(
     steps
         Central-difference steps ``{name: step}`` replacing
         :data:`BOUND_STEPS`.
-    rotation_step
-        Central-difference step in degrees of the crystal rotations.
     max_bytes
         Memory budget of one chunk's derivatives; patterns are processed
         in chunks.
@@ -296,7 +295,8 @@ def cramer_rao_bound(
     check_master_pattern(master_pattern)
     names = check_parameters(parameters)
     columns, split = _columns(names)
-    step = _steps(columns, steps, rotation_step)
+    step = _steps(columns, steps)
+    arrays = master_pattern_arrays(master_pattern, energy)
     exp, pts = _patterns(patterns, geometry, points)
     rot = _rotations(rotations, pts, geometry.navigation_shape)
     sigma = _noise(noise, len(pts))
@@ -315,8 +315,7 @@ def cramer_rao_bound(
             rot[sl],
             pts[sl],
             geometry,
-            master_pattern,
-            float(energy),
+            arrays,
             columns,
             step,
             None if sigma is None else sigma[sl],
@@ -362,14 +361,13 @@ def _columns(names: tuple[str, ...]) -> tuple[tuple[str, ...], dict[str, str]]:
     return tuple(columns), split
 
 
-def _steps(columns, steps, rotation_step) -> dict[str, float]:
+def _steps(columns, steps) -> dict[str, float]:
     out = dict(BOUND_STEPS)
     if steps:
         check_parameters(list(steps))
         out.update({k: float(v) for k, v in steps.items()})
     # The angles' columns are built from the PC columns
     out = {n: out[n] for n in dict.fromkeys((*_PC, *columns))}
-    out["rotation"] = np.deg2rad(float(rotation_step))
     if not all(np.isfinite(v) and v > 0 for v in out.values()):
         raise ValueError(f"Finite-difference steps must be positive, not {out}")
     return out
@@ -478,17 +476,12 @@ def _noise(noise, n: int) -> np.ndarray | None:
 # --------------------------------------------------------------------- #
 
 
-def _fisher(exp, rot, pts, geometry, master_pattern, energy, columns, step, sigma):
+def _fisher(exp, rot, pts, geometry, arrays, columns, step, sigma):
     """Per-pattern Fisher matrices (n, K + 5, K + 5), columns geometry,
     rotation (3, radians), gain, offset; and gain, offset, noise SD and
     R^2 (4, n) of the fits."""
     n = len(pts)
-
-    def simulate(geo: MapGeometry, r: Rotation) -> np.ndarray:
-        sim = simulate_patterns(master_pattern, r, geo.detector(pts), energy)
-        return sim.reshape(n, -1).astype(np.float64)
-
-    s0 = simulate(geometry, rot)
+    s0, j_geo, j_rot = intensity_jacobian(geometry, pts, rot, arrays, columns, step)
     y = exp.reshape(n, -1)
     sc = s0 - s0.mean(axis=1, keepdims=True)
     yc = y - y.mean(axis=1, keepdims=True)
@@ -506,6 +499,9 @@ def _fisher(exp, rot, pts, geometry, master_pattern, energy, columns, step, sigm
         # Two fitted numbers per pattern; the other unknowns are few
         # against thousands of pixels
         var = rss / (y.shape[1] - 2)
+        # A float32 simulation fitted by the float64 kernel leaves only
+        # round-off, about 1e-14 of the variance
+        var = np.where(r2 > 1 - 1e-10, 0.0, var)
         if (var <= 0).any():
             raise ValueError(
                 f"The pattern at (row, col) {pts[var <= 0][0].tolist()} is fitted exactly "
@@ -513,61 +509,10 @@ def _fisher(exp, rot, pts, geometry, master_pattern, energy, columns, step, sigm
             )
     else:
         var = sigma**2
-
-    # The pattern's own PC and a rotation of its crystal, by central
-    # differences; a detector angle is a rotation of every crystal plus a
-    # change of the PC field, so its column is built from those. Measured
-    # directly, its difference from a rotation column, all that is left once
-    # the orientations are free, drowned in the differences' own errors at
-    # the kinks of the master pattern's interpolation (the azimuthal bound
-    # changed almost threefold between steps of 0.005 and 0.04 deg)
-    local = {}
-    for i, name in enumerate(_PC):
-        if name in columns or any(n not in _PC for n in columns):
-            h = step[name]
-            plus = simulate(geometry.updated({name: h}), rot)
-            minus = simulate(geometry.updated({name: -h}), rot)
-            local[i] = (plus - minus) / (2 * h)
-    h = step["rotation"]
-    j_rot = []
-    for axis in range(_N_ROT):
-        w = np.zeros(3)
-        w[axis] = h
-        # The refinement's update: g -> g * T, T a sample-frame rotation
-        plus = simulate(geometry, rot * rotations_from_vectors(w))
-        minus = simulate(geometry, rot * rotations_from_vectors(-w))
-        j_rot.append((plus - minus) / (2 * h))
-    cols = []
-    for name in columns:
-        if name in _PC:
-            cols.append(local[_PC.index(name)])
-            continue
-        c, dpc = _angle_derivatives(geometry, pts, name, step[name])
-        col = sum(c[a] * j_rot[a] for a in range(_N_ROT))
-        cols.append(col + sum(dpc[:, i, None] * local[i] for i in range(3)))
-    cols += j_rot
-    jac = np.stack(cols, axis=-1) * gain[:, None, None]
+    jac = np.concatenate([j_geo, j_rot], axis=-1) * gain[:, None, None]
     jac = np.concatenate([jac, s0[..., None], np.ones_like(s0)[..., None]], axis=-1)
     fisher = np.einsum("npi,npj->nij", jac, jac) / var[:, None, None]
     return fisher, np.stack([gain, offset, np.sqrt(var), r2])
-
-
-def _angle_derivatives(
-    geometry: MapGeometry, pts: np.ndarray, name: str, h: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """The crystal rotation vector (3,) and the PC changes (n, 3) per
-    degree of the angle *name*: at a fixed PC, detector ``M -> M'`` shows
-    what the crystal rotated by ``T = M'^T M`` (``g -> g * T``) shows at
-    ``M``."""
-    plus, minus = geometry.updated({name: h}), geometry.updated({name: -h})
-    m0 = sample_to_detector_matrix(*geometry.angles)
-    vec = []
-    for g in (plus, minus):
-        t = sample_to_detector_matrix(*g.angles).T @ m0
-        # The rotation vector of a small rotation matrix from its skew
-        # part; orix's from_matrix rounds rotations below ~1e-3 deg to none
-        vec.append(np.array([t[2, 1] - t[1, 2], t[0, 2] - t[2, 0], t[1, 0] - t[0, 1]]) / 2)
-    return (vec[0] - vec[1]) / (2 * h), (plus.pc_at(pts) - minus.pc_at(pts)) / (2 * h)
 
 
 def _reduce(fisher: np.ndarray, geo: np.ndarray, nuisance: np.ndarray) -> np.ndarray:

@@ -9,8 +9,9 @@ import pytest
 from orix.quaternion import Rotation
 
 from kikuchipy_geomdic import synthetic
-from kikuchipy_geomdic.bound import CramerRaoBound, _angle_derivatives, cramer_rao_bound
+from kikuchipy_geomdic.bound import CramerRaoBound, cramer_rao_bound
 from kikuchipy_geomdic.geometry import copy_detector, rotations_from_vectors
+from kikuchipy_geomdic.jacobian import parameter_derivatives
 from kikuchipy_geomdic.refinement import GeometryRefinementResult
 from kikuchipy_geomdic.simulation import simulate_patterns
 
@@ -80,11 +81,12 @@ def test_angle_bound_does_not_depend_on_the_steps(maps):
     b = _bound(
         sm,
         parameters=params,
-        steps={"pcx": 4e-4, "pcy": 4e-4, "pcz": 4e-4, "azimuthal": 0.04, "tilt": 0.04},
-        rotation_step=0.04,
+        steps={"pcx": 5e-5, "pcy": 5e-5, "pcz": 5e-5, "azimuthal": 0.04, "tilt": 0.04},
     )
+    # Measured: 0.1-0.2 % between PC steps of 5e-5 and 1e-4 (larger steps
+    # average over the interpolation's kinks: 8 % smaller at 4e-4)
     for name in params:
-        assert b.sigma[name] == pytest.approx(a.sigma[name], rel=0.03), name
+        assert b.sigma[name] == pytest.approx(a.sigma[name], rel=0.01), name
 
 
 # --------------------------------------------------------------------- #
@@ -260,7 +262,7 @@ def test_angle_is_a_crystal_rotation(tiny, name):
     """At a fixed PC, an angle changes the pattern as the crystal rotation
     the angle columns are built from: the sign and size of that rotation."""
     h = 0.02
-    c, _ = _angle_derivatives(tiny.geo, tiny.pts, name, 1e-3)
+    c, _ = parameter_derivatives(tiny.geo, tiny.pts, name, 1e-3)
     det = tiny.geo.detector(tiny.pts)  # The PCs stay those of tiny.geo
 
     def sim(geo, rot):
