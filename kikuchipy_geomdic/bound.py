@@ -63,7 +63,7 @@ from kikuchipy_geomdic.geometry import (
     MapGeometry,
     check_parameters,
 )
-from kikuchipy_geomdic.jacobian import intensity_jacobian
+from kikuchipy_geomdic.jacobian import INTENSITY_STEPS, intensity_jacobian
 from kikuchipy_geomdic.maps import flat_index, navigation_shape
 from kikuchipy_geomdic.orientation import master_pattern_arrays
 from kikuchipy_geomdic.refinement import TILT_DIFFERENCE, calibration_points
@@ -71,25 +71,9 @@ from kikuchipy_geomdic.simulation import check_master_pattern
 
 __all__ = ["CramerRaoBound", "cramer_rao_bound", "BOUND_STEPS"]
 
-#: Central-difference step per geometry parameter (PC fractions, degrees).
-#: A PC step of 1e-4 moves the features of a 120 px pattern by 0.012 px,
-#: on the scale of the rotation step
-#: (:data:`~kikuchipy_geomdic.jacobian.ROTATION_STEP`): measured on a
-#: 4 x 4 Si map of 48 px, the PC bounds changed by 0.1-0.2 % between PC
-#: steps of 5e-5 and 1e-4 and fell by 8 % at 4e-4 (larger steps average
-#: over the kinks of the master pattern's bilinear interpolation, unlike
-#: the rotation columns they are reduced against); the angle steps (0.01
-#: or 0.04 deg) change nothing, the angles' columns being built from the
-#: rotation and PC columns.
-BOUND_STEPS = {
-    "pcx": 1e-4,
-    "pcy": 1e-4,
-    "pcz": 1e-4,
-    "tilt": 0.01,
-    "azimuthal": 0.01,
-    "sample_tilt": 0.01,
-    "twist": 0.01,
-}
+#: Central-difference steps per geometry parameter (PC fractions,
+#: degrees): those of the intensity Jacobian.
+BOUND_STEPS = INTENSITY_STEPS
 
 #: Memory budget (bytes) of one chunk's derivatives, float64.
 MAX_BYTES = 128 * 2**20

@@ -63,6 +63,7 @@ __all__ = [
     "neighbour_seeds",
     "VariantComparison",
     "compare_variants",
+    "standardise",
 ]
 
 #: Smallest side (px) of a binned pattern in the coarse-to-fine schedule:
@@ -711,9 +712,9 @@ def refine_arrays(
         # The coarse stages never make a start worse: where the start
         # itself correlates better, the last stage runs from it instead
         sims = project_arrays(q0, pcs, om, arrays, shape).reshape(n, -1)
-        start = (
-            _standardise(sims) * _standardise(patterns.reshape(n, -1).astype(np.float64))
-        ).mean(axis=1)
+        start = (standardise(sims) * standardise(patterns.reshape(n, -1).astype(np.float64))).mean(
+            axis=1
+        )
         evaluations += 1
         worse = np.flatnonzero(start > ncc)
         if worse.size:
@@ -961,7 +962,9 @@ class VariantComparison:
     ncc: np.ndarray
 
 
-def _standardise(a: np.ndarray) -> np.ndarray:
+def standardise(a: np.ndarray) -> np.ndarray:
+    """Return *a* with zero mean and unit standard deviation along its last
+    axis (rows of zeros stay zero): NCC is then a mean of products."""
     a = a - a.mean(axis=-1, keepdims=True)
     sd = a.std(axis=-1, keepdims=True)
     return a / np.where(sd > 0, sd, 1.0)
@@ -1047,8 +1050,8 @@ def compare_variants(
     shape = patterns.shape[1:]
     pcs = np.asarray(pcs, dtype=np.float64).reshape(n, 3)
     sims = project_arrays(quaternions.reshape(-1, 4), np.repeat(pcs, m, axis=0), om, arrays, shape)
-    s = _standardise(sims.reshape(n, m, -1))
-    e = _standardise(np.asarray(patterns, dtype=np.float64).reshape(n, 1, -1))
+    s = standardise(sims.reshape(n, m, -1))
+    e = standardise(np.asarray(patterns, dtype=np.float64).reshape(n, 1, -1))
     ncc = (s * e).mean(axis=-1)
     rho = np.einsum("npk,nqk->npq", s, s) / s.shape[-1]
     with np.errstate(divide="ignore", invalid="ignore"):
