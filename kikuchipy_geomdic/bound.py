@@ -19,9 +19,8 @@ refinement updates orientations), ``a_i`` and ``b_i``. With Gaussian
 white noise of variance ``sigma_i^2`` the Fisher information of pattern
 ``i`` is ``J_i^T J_i / sigma_i^2``, ``J_i`` the derivatives of the model
 by every unknown (:func:`~kikuchipy_geomdic.jacobian.intensity_jacobian`:
-analytic for the rotation, central differences of each pattern's PC,
-and a detector angle as the crystal rotation plus the change of the PC
-field it amounts to). Each
+analytic for the rotation and each pattern's PC, and a detector angle as
+the crystal rotation plus the change of the PC field it amounts to). Each
 pattern's nuisances are eliminated by a Schur complement, the reduced
 matrices summed over the patterns and inverted: the square roots of the
 diagonal are the bound.
@@ -71,8 +70,9 @@ from kikuchipy_geomdic.simulation import check_master_pattern
 
 __all__ = ["CramerRaoBound", "cramer_rao_bound", "BOUND_STEPS"]
 
-#: Central-difference steps per geometry parameter (PC fractions,
-#: degrees): those of the intensity Jacobian.
+#: Steps per geometry parameter (PC fractions, degrees) of the
+#: differences of the PC field and detector matrix: those of the
+#: intensity Jacobian.
 BOUND_STEPS = INTENSITY_STEPS
 
 #: Memory budget (bytes) of one chunk's derivatives, float64.

@@ -40,21 +40,13 @@ __all__ = [
 ]
 
 #: Rotation step (radians) of the central difference of the rotation
-#: columns: the forward map is exact, so only round-off limits it; the
-#: simulated intensities of :func:`intensity_jacobian` are smooth over it
-#: too (0.006 deg, 1/100 of a 120 px detector pixel).
+#: columns: the forward map is exact, so only round-off limits it.
 ROTATION_STEP = 1e-4
 
 
-#: Central-difference steps of :func:`intensity_jacobian` (PC fractions,
-#: degrees). A PC step of 1e-4 moves the features of a 120 px pattern by
-#: 0.012 px, on the scale of :data:`ROTATION_STEP`: measured on a 4 x 4 Si
-#: map of 48 px, the Cramer-Rao bounds of the PC changed by 0.1-0.2 %
-#: between PC steps of 5e-5 and 1e-4 and fell by 8 % at 4e-4 (larger
-#: steps average over the kinks of the master pattern's bilinear
-#: interpolation, unlike the rotation columns they are reduced against);
-#: the angle steps change nothing, the angles' columns being built from
-#: the rotation and PC columns.
+#: Steps of :func:`parameter_derivatives` in :func:`intensity_jacobian`
+#: (PC fractions, degrees): the PC field and the detector matrix are
+#: smooth in the parameters, so the differences are exact to round-off.
 INTENSITY_STEPS = {
     "pcx": 1e-4,
     "pcy": 1e-4,
@@ -307,20 +299,18 @@ def intensity_jacobian(
     """Return per-pattern Jacobians of the simulated intensities.
 
     The full-field counterpart of :func:`pattern_jacobian`: derivatives of
-    every pixel of each simulated pattern
-    (:func:`~kikuchipy_geomdic.orientation.project_arrays`) instead of ROI
-    displacements. Every column is a central difference of the same
-    projection, so that what is left of a geometry column once the
-    rotations are eliminated is not an artefact of two kinds of
-    derivative (with the analytic rotation derivative of the orientation
-    solver, the bound of pcx moved by 9 % between PC steps of 1e-4 and
-    4e-4; with central differences throughout, by under 1 %). A rotation
-    column differences ``g -> g * T`` by :data:`ROTATION_STEP`; a PC
-    column the pattern's own PC; an angle's
-    column is the crystal rotation it amounts to plus its change of the PC
-    field (:func:`parameter_derivatives`): measured directly, what is left of
-    it once the orientations are free drowned in the differences' errors
-    at the kinks of the master pattern's interpolation.
+    every pixel of each simulated pattern instead of ROI displacements,
+    all analytic and from one pass of the projection
+    (:func:`~kikuchipy_geomdic.orientation.project_derivatives`): the
+    rotation columns and the pattern's own PC columns; a geometry
+    parameter's column is the crystal rotation it amounts to plus its
+    change of the PC field across the map (:func:`parameter_derivatives`).
+    Measured directly, what is left of an angle's column once the
+    orientations are free drowned in finite-difference errors at the
+    kinks of the master pattern's interpolation; and central differences
+    of the PC reduced against analytic rotation columns moved the bound of
+    pcx by 9 % between steps of 1e-4 and 4e-4. Analytic throughout, every
+    column is the exact derivative of the same model.
 
     Parameters
     ----------
@@ -335,9 +325,8 @@ def intensity_jacobian(
     names
         Geometry parameters, one column each.
     steps
-        ``{name: delta}`` of the central differences (PC steps apply to
-        the pattern's PC; angle steps to :func:`parameter_derivatives`;
-        ``"rotation"`` in radians, default :data:`ROTATION_STEP`).
+        ``{name: delta}`` of :func:`parameter_derivatives` (its
+        differences are of smooth functions; any small step will do).
 
     Returns
     -------
@@ -366,8 +355,7 @@ def intensity_jacobian(
     """
     from orix.quaternion import Rotation
 
-    from kikuchipy_geomdic.geometry import rotations_from_vectors
-    from kikuchipy_geomdic.orientation import detector_matrix, project_arrays
+    from kikuchipy_geomdic.orientation import detector_matrix, project_derivatives
 
     pts = np.asarray(points)
     q = np.asarray(
@@ -377,39 +365,10 @@ def intensity_jacobian(
     pcs = det.pc.reshape(-1, 3).astype(np.float64)
     if pcs.shape[0] == 1:
         pcs = np.repeat(pcs, len(q), axis=0)
-    om = detector_matrix(det)
-    shape = tuple(det.shape)
-    n = len(q)
-
-    def project(quats, p=pcs):
-        return project_arrays(quats, p, om, arrays, shape).reshape(n, -1)
-
-    simulated = project(q)
-    g = Rotation(q)
-    j_rot = []
-    for axis in range(3):
-        w = np.zeros(3)
-        w[axis] = steps.get("rotation", ROTATION_STEP)
-        plus = project((g * rotations_from_vectors(w)).data)
-        minus = project((g * rotations_from_vectors(-w)).data)
-        j_rot.append((plus - minus) / (2 * w[axis]))
-    j_rot = np.stack(j_rot, axis=-1)
-    local = {}
-
-    def pc_column(i):
-        if i not in local:
-            h = np.zeros(3)
-            h[i] = steps.get(("pcx", "pcy", "pcz")[i], 1e-4)
-            plus, minus = project(q, pcs + h), project(q, pcs - h)
-            local[i] = (plus - minus) / (2 * h[i])
-        return local[i]
+    simulated, j_rot, j_pc = project_derivatives(q, pcs, detector_matrix(det), arrays, det.shape)
 
     def column(name, step):
         rot, dpc = parameter_derivatives(geometry, pts, name, step)
-        col = np.einsum("npa,a->np", j_rot, rot)
-        for i in range(3):
-            if np.any(dpc[:, i] != 0):
-                col = col + dpc[:, i, None] * pc_column(i)
-        return col
+        return np.einsum("npa,a->np", j_rot, rot) + np.einsum("npi,ni->np", j_pc, dpc)
 
     return simulated, _assemble(names, steps, column, axis=-1), j_rot

@@ -1695,7 +1695,9 @@ def _intensity_system(problem, arrays, geometry, rotations, solved, psf=0.0):
     )
 
     def reduce(a):
-        return a - np.einsum("npb,nb...->np...", basis, np.einsum("npb,np...->nb...", basis, a))
+        flat = a.reshape(n, a.shape[1], -1)
+        bt = np.swapaxes(basis, 1, 2)
+        return (flat - basis @ (bt @ flat)).reshape(a.shape)
 
     residual = -reduce(e)  # model minus data, with the fitted gain and offset
     jg = reduce(gain[:, None, None] * jg)
@@ -1709,9 +1711,9 @@ def _full_field(problem, state, prior, kept, first_it) -> _FullField:
     converged: the geometry and one rotation per pattern, the rotations
     eliminated by the Schur complement of :func:`solve_joint`, each
     pattern's gain and offset projected out, each pattern weighted by the
-    inverse of its residual variance, the simulation blurred by the
-    point spread that matches the patterns best. The parameters the DIC stage kept
-    at their start stay there."""
+    inverse of its residual variance, the simulation blurred by the point
+    spread that matches the patterns best. The parameters the DIC stage
+    kept at their start stay there."""
     from kikuchipy_geomdic.orientation import master_pattern_arrays
 
     names = problem.parameters
@@ -1722,27 +1724,31 @@ def _full_field(problem, state, prior, kept, first_it) -> _FullField:
     geometry, rotations = state.geometry, state.rotations
     psf = _point_spread(problem, arrays, geometry, rotations)
     history = []
-    chi2_prev = np.inf
-    weights = None
-    last = (geometry, rotations)
+    chi2_prev, weights, last, cov = np.inf, None, None, None
     for it in range(FULL_FIELD_ITERATIONS):
         residual, jg, jr, var = _intensity_system(
             problem, arrays, geometry, rotations, solved, psf
         )
         if weights is None:
-            # Weights fixed at the first step: chi2 then compares steps
+            # Weights fixed at the first step, so that chi2 compares steps
             weights = np.broadcast_to(1 / var[:, None], residual.shape)
         offsets = problem.rotation_offsets(rotations)
         full = solve_joint(jg, jr, residual, weights, prior=prior_rad, offsets=offsets)
-        se = np.sqrt(np.clip(np.diag(full.model_covariance), 0, None))
         if full.chi2 > chi2_prev:
             # The last step went uphill: undo it and stop
+            history[-1]["accepted"] = False
             geometry, rotations = last
-            history.append(dict(iteration=it, accepted=False, chi2=float(full.chi2)))
             break
-        upd = solve_joint(jg[..., free], jr, residual, weights, prior=prior_rad, offsets=offsets)
+        # The white-noise model covariance: what the Cramer-Rao bound is
+        # made of, the residual taken as the noise
+        cov = full.model_covariance
+        se = np.sqrt(np.clip(np.diag(cov), 0, None))
+        upd = full
+        if len(free) < len(solved):
+            upd = solve_joint(
+                jg[..., free], jr, residual, weights, prior=prior_rad, offsets=offsets
+            )
         delta = dict(zip([solved[i] for i in free], map(float, upd.delta)))
-        history.append(dict(iteration=it, accepted=True, chi2=float(full.chi2), delta=dict(delta)))
         chi2_prev, last = full.chi2, (geometry, rotations)
         geometry = geometry.updated(_expand(delta, split))
         rotations = rotations * rotations_from_vectors(upd.rotations)
@@ -1761,16 +1767,10 @@ def _full_field(problem, state, prior, kept, first_it) -> _FullField:
                 chi2=float(full.chi2),
             )  # fmt: skip
         )
+        # Steps this small leave the covariance as it was
         if all(abs(delta[solved[i]]) <= FULL_FIELD_STOP * se[i] for i in free):
             break
-    # Standard errors at the end, every solved parameter: the model
-    # covariance, the white-noise one the Cramer-Rao bound is made of
-    residual, jg, jr, var = _intensity_system(problem, arrays, geometry, rotations, solved, psf)
-    final = solve_joint(
-        jg, jr, residual, np.broadcast_to(1 / var[:, None], residual.shape),
-        prior=prior_rad, offsets=problem.rotation_offsets(rotations),
-    )  # fmt: skip
-    se = dict(zip(solved, map(float, np.sqrt(np.clip(np.diag(final.model_covariance), 0, None)))))
+    se = dict(zip(solved, map(float, np.sqrt(np.clip(np.diag(cov), 0, None)))))
     if "tilt" in names or "sample_tilt" in names:
         se[TILT_DIFFERENCE] = se["tilt" if "tilt" in solved else "sample_tilt"]
     for name, base in split.items():

@@ -205,6 +205,67 @@ def test_simulator_mismatch(si_mp):
     assert _max_pc_error(res, sm) <= 3e-4
 
 
+# --------------------------------------------------------------------- #
+# The full-field stage
+# --------------------------------------------------------------------- #
+
+
+@pytest.fixture(scope="module")
+def blurred():
+    """Moderate noise and a detector blur of 0.6 px, patterns from the
+    EMsoft Ni master pattern (the blur is what the full-field stage must
+    model: unmodelled, it moved pcz by 11 standard errors)."""
+    emsoft = synthetic.master_pattern("Ni", kind="emsoft")
+    return synthetic.synthetic_map(
+        emsoft, (7, 7), shape=(80, 80), seed=1, dose=150, blur=0.6, start="uncentred",
+        perturbation={"pcx": 0.01, "pcy": -0.008, "pcz": 0.008},
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def blurred_results(blurred):
+    kw = dict(points=49, parameters=["pcx", "pcy", "pcz"])
+    return _refine(blurred, **kw), _refine(blurred, full_field=True, **kw)
+
+
+def test_full_field_reaches_the_bound(blurred, blurred_results):
+    from kikuchipy_geomdic.bound import cramer_rao_bound
+
+    sm = blurred
+    dic, ff = blurred_results
+    assert _max_pc_error(ff, sm) < _max_pc_error(dic, sm)
+    err, _ = _errors(ff, sm)
+    for name in ("pcx", "pcy", "pcz"):
+        # Honest errors, smaller than the DIC stage's
+        assert abs(err[name]) <= 3 * ff.standard_errors[name], (name, err[name])
+        assert ff.standard_errors[name] < 0.7 * dic.standard_errors[name]
+    # The bound of the same patterns, without the blur in the model (so
+    # a little larger): the full-field errors are at it
+    crb = cramer_rao_bound(
+        sm.signal, sm.xmap, sm.geometry, sm.master_pattern, 20, points=ff.points,
+        parameters=["pcx", "pcy", "pcz"],
+    )  # fmt: skip
+    for name in ("pcx", "pcy", "pcz"):
+        assert 0.5 < ff.standard_errors[name] / crb.sigma[name] < 1.5
+    stages = [h.get("stage") for h in ff.history]
+    assert "full-field" in stages and "full-field" not in [h.get("stage") for h in dic.history]
+
+
+def test_point_spread_is_estimated(blurred, blurred_results):
+    from kikuchipy_geomdic.orientation import master_pattern_arrays
+    from kikuchipy_geomdic.refinement import _point_spread
+
+    sm, (_, ff) = blurred, blurred_results
+
+    class Problem:
+        points = ff.points
+        experimental = sm.signal.data.reshape(-1, 80, 80)[ff.points[:, 0] * 7 + ff.points[:, 1]]
+
+    arrays = master_pattern_arrays(sm.master_pattern, 20)
+    rot = sm.xmap.rotations.flatten()[ff.points[:, 0] * 7 + ff.points[:, 1]]
+    assert _point_spread(Problem, arrays, sm.geometry, rot) == pytest.approx(0.6, abs=0.15)
+
+
 @pytest.mark.parametrize("orientations", ["random", "single"])
 def test_all_six_parameters(si_mp, poly_result, orientations):
     sm = synthetic.synthetic_map(si_mp, (7, 7), orientations=orientations, shape=(60, 60), seed=0)
