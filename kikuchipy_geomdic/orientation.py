@@ -546,6 +546,32 @@ def _project_stack_derivatives(quats, pcs, nrows, ncols, om, upper, lower, scale
 
 
 @nb.njit(cache=True, nogil=True)
+def _stack_ncc(patterns, quats, pcs, nrows, ncols, om, upper, lower, scale):
+    """NCC of each pattern with its projection, one pattern in memory."""
+    n = quats.shape[0]
+    out = np.empty(n)
+    value = np.empty(nrows * ncols)
+    jac = np.empty((1, 3))
+    for p in range(n):
+        dc = _direction_cosines(pcs[p], nrows, ncols, om)
+        _project(quats[p], dc, upper, lower, scale, value, jac, False)
+        e = patterns[p].astype(np.float64)
+        em = e.mean()
+        sm = value.mean()
+        sxe = 0.0
+        sxx = 0.0
+        see = 0.0
+        for k in range(value.size):
+            a = value[k] - sm
+            b = e[k] - em
+            sxe += a * b
+            sxx += a * a
+            see += b * b
+        out[p] = sxe / math.sqrt(sxx * see) if sxx > 0 and see > 0 else 0.0
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
 def _project_stack(quats, pcs, nrows, ncols, om, upper, lower, scale):
     n = quats.shape[0]
     out = np.empty((n, nrows * ncols))
@@ -765,10 +791,10 @@ def refine_arrays(
     if len(schedule) > 1:
         # The coarse stages never make a start worse: where the start
         # itself correlates better, the last stage runs from it instead
-        sims = project_arrays(q0, pcs, om, arrays, shape).reshape(n, -1)
-        start = (standardise(sims) * standardise(patterns.reshape(n, -1).astype(np.float64))).mean(
-            axis=1
-        )
+        start = _stack_ncc(
+            np.ascontiguousarray(patterns.reshape(n, -1)), q0, pcs, shape[0], shape[1], om,
+            arrays.upper, arrays.lower, float(arrays.scale),
+        )  # fmt: skip
         evaluations += 1
         worse = np.flatnonzero(start > ncc)
         if worse.size:

@@ -117,11 +117,11 @@ METHODS = ("geomdic", "kikuchipy")
 #: :func:`~kikuchipy_geomdic.orientation.refine_patterns`).
 GEOMDIC_OPTIONS = ("levels", "max_step")
 
-#: Pattern bytes (as float32) per dask chunk when the signal is in memory:
-#: large enough that a chunk's Python overhead is small (290 patterns of
-#: 120 px), small enough that the solver's working copies of a chunk stay
-#: near 100 MB (measured: 384 MB above the map for 256 patterns of 240 px
-#: on two threads).
+#: Pattern bytes (as float32) per dask chunk when the signal is in memory,
+#: and per batch the solver takes from a chunk: large enough that the
+#: Python overhead is small (290 patterns of 120 px), small enough that
+#: the solver's working copies stay near 100 MB per thread (measured: 384
+#: MB above the map for chunks of 256 patterns of 240 px on two threads).
 CHUNK_BYTES = 16 * 2**20
 
 # Columns of the per-point output of a chunk; then one NCC per candidate
@@ -622,12 +622,16 @@ def _refine_block(patterns, q, pcs, todo, *, arrays, om, levels, max_step, dic_r
     out[:, _EVALS] = 0
     out[:, _CONV] = 0
     out[:, _VARIANT] = 0
-    flat = todo.ravel()
-    if flat.any():
-        p = patterns.reshape((r * c,) + patterns.shape[2:])[flat]
-        out[flat] = _refine_points(
-            p, q.reshape(-1, 4)[flat], pcs.reshape(-1, 3)[flat], arrays, om, levels, max_step,
-            dic_rms, ops,
+    idx = np.flatnonzero(todo.ravel())
+    p = patterns.reshape((r * c,) + patterns.shape[2:])
+    q, pcs = q.reshape(-1, 4), pcs.reshape(-1, 3)
+    # A file's chunks can be large (2200 patterns of 60 px in kikuchipy's
+    # h5ebsd): the solver's float64 working copies are bounded by batches
+    batch = max(1, CHUNK_BYTES // (4 * p.shape[1] * p.shape[2]))
+    for start in range(0, idx.size, batch):
+        i = idx[start : start + batch]
+        out[i] = _refine_points(
+            p[i], q[i], pcs[i], arrays, om, levels, max_step, dic_rms, ops
         )  # fmt: skip
     return out.reshape(r, c, -1)
 
