@@ -112,7 +112,7 @@ def report(study, mat, tag, quick=False):
         RESULTS / f"perturbation_{tag}_misorientation.png", dpi=110
     )
     study.plot_errors().savefig(RESULTS / f"perturbation_{tag}_errors.png", dpi=110)
-    pairs_done = st._pairs_in(study.table)
+    pairs_done = st.pairs_in(study.table)
     for pair in pairs_done[:2] if quick else [("pcz", "tilt"), ("azimuthal", "sample_tilt")]:
         if pair in pairs_done:
             study.plot_normalised_errors(pair).savefig(

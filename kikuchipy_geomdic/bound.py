@@ -57,10 +57,10 @@ from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.geometry import (
     DEFAULT_PARAMETERS,
-    EQUIVALENT_PARAMETERS,
     UNITS,
     MapGeometry,
     check_parameters,
+    solved_parameters,
 )
 from kikuchipy_geomdic.jacobian import INTENSITY_STEPS, intensity_jacobian
 from kikuchipy_geomdic.maps import flat_index, navigation_shape
@@ -278,7 +278,7 @@ def cramer_rao_bound(
         raise TypeError(f"geometry must be a MapGeometry, not {type(geometry).__name__}")
     check_master_pattern(master_pattern)
     names = check_parameters(parameters)
-    columns, split = _columns(names)
+    columns, split = solved_parameters(names)
     step = _steps(columns, steps)
     arrays = master_pattern_arrays(master_pattern, energy)
     exp, pts = _patterns(patterns, geometry, points)
@@ -330,19 +330,6 @@ def cramer_rao_bound(
 # --------------------------------------------------------------------- #
 # Inputs
 # --------------------------------------------------------------------- #
-
-
-def _columns(names: tuple[str, ...]) -> tuple[tuple[str, ...], dict[str, str]]:
-    """Parameters with a Fisher column, and ``{name: base}`` for those
-    left out because their column is a multiple of a kept one's."""
-    columns, split = [], {}
-    for name in names:
-        base = EQUIVALENT_PARAMETERS.get(name, (None,))[0]
-        if base in names:
-            split[name] = base
-        else:
-            columns.append(name)
-    return tuple(columns), split
 
 
 def _steps(columns, steps) -> dict[str, float]:

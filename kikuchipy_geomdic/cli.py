@@ -152,7 +152,10 @@ def _demo(args: argparse.Namespace) -> int:
         f"perturbation; {how}."
     )
     t1 = time.perf_counter()
-    res = sm.refine_geometry(
+    from kikuchipy_geomdic.refinement import refine_geometry_dic
+
+    res = refine_geometry_dic(
+        *sm.start_inputs,
         points=args.points,
         orientation_prior=synthetic.centred_prior(error) if args.paper else None,
         seed=args.seed,

@@ -26,7 +26,7 @@ import numpy as np
 
 from kikuchipy_geomdic import synthetic
 from kikuchipy_geomdic.maps import flat_index
-from kikuchipy_geomdic.refinement import calibration_points
+from kikuchipy_geomdic.refinement import calibration_points, refine_geometry_dic
 from kikuchipy_geomdic.reindex import quiet, refine_orientations, stack_signal
 from kikuchipy_geomdic.study import (
     _PC,
@@ -186,7 +186,9 @@ def compare_methods(
             if method in configs:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
-                    res = sm.refine_geometry(points=pts, show_progressbar=False, **configs[method])
+                    res = refine_geometry_dic(
+                        *sm.start_inputs, points=pts, show_progressbar=False, **configs[method]
+                    )
                 row["time"] = time.perf_counter() - t0
                 geo = res.geometry
                 rot = res.xmap.rotations

@@ -214,51 +214,58 @@ def pc_in_convention(detector: EBSDDetector, convention: str) -> np.ndarray:
     return detector.pc_emsoft(int(conv[-1]))
 
 
+#: Per convention: the vendor's names of the PC's three values, as
+#: kikuchipy's readers map them, then of the angles and detector values
+#: the vendor's files carry, each with how to get it from a detector.
+_VENDOR_FIELDS = {
+    "bruker": (
+        ("PCX", "PCY", "DD"),
+        {"CameraTilt": lambda d: d.tilt, "Sample Tilt": lambda d: d.sample_tilt},
+    ),
+    "tsl": (
+        ("x-star", "y-star", "z-star"),
+        {
+            "Camera Elevation Angle": lambda d: d.tilt,
+            "Camera Azimuthal Angle": lambda d: d.azimuthal,
+            "Sample Tilt": lambda d: d.sample_tilt,
+        },
+    ),
+    "oxford": (
+        ("Pattern Center X", "Pattern Center Y", "Detector Distance"),
+        {
+            "Tilt Angle (rad)": lambda d: math.radians(d.sample_tilt),
+            "Detector Orientation Euler Phi (rad)": lambda d: math.radians(d.tilt + 90),
+        },
+    ),
+    "emsoft": (
+        ("xpc", "ypc", "L"),
+        {
+            "thetac": lambda d: d.tilt,
+            "delta": lambda d: float(d.px_size),
+            "binning": lambda d: float(d.binning),
+            "numsx": lambda d: int(d.ncols),
+            "numsy": lambda d: int(d.nrows),
+        },
+    ),
+}
+
+#: The angles each convention's fields carry.
+_CARRIED = {
+    "bruker": ("tilt", "sample_tilt"),
+    "tsl": ("tilt", "azimuthal", "sample_tilt"),
+    "oxford": ("tilt", "sample_tilt"),
+    "emsoft": ("tilt",),
+}
+
+
 def _vendor_fields(conv: str, pc, det: EBSDDetector) -> tuple[dict, list[str]]:
     """The vendor's field names for the values, as kikuchipy's readers
     map them, and the non-zero angles those fields do not carry."""
-    x, y, z = (float(v) for v in pc)
-    if conv == "bruker":
-        fields = {
-            "PCX": x,
-            "PCY": y,
-            "DD": z,
-            "CameraTilt": det.tilt,
-            "Sample Tilt": det.sample_tilt,
-        }
-        carried = ("tilt", "sample_tilt")
-    elif conv == "tsl":
-        fields = {
-            "x-star": x,
-            "y-star": y,
-            "z-star": z,
-            "Camera Elevation Angle": det.tilt,
-            "Camera Azimuthal Angle": det.azimuthal,
-            "Sample Tilt": det.sample_tilt,
-        }
-        carried = ("tilt", "azimuthal", "sample_tilt")
-    elif conv == "oxford":
-        fields = {
-            "Pattern Center X": x,
-            "Pattern Center Y": y,
-            "Detector Distance": z,
-            "Tilt Angle (rad)": math.radians(det.sample_tilt),
-            "Detector Orientation Euler Phi (rad)": math.radians(det.tilt + 90),
-        }
-        carried = ("tilt", "sample_tilt")
-    else:
-        fields = {
-            "xpc": x,
-            "ypc": y,
-            "L": z,
-            "thetac": det.tilt,
-            "delta": float(det.px_size),
-            "binning": float(det.binning),
-            "numsx": int(det.ncols),
-            "numsy": int(det.nrows),
-        }
-        carried = ("tilt",)
-    lost = [a for a in _ANGLES if a not in carried and getattr(det, a) != 0]
+    key = "emsoft" if conv.startswith("emsoft") else conv
+    names, extra = _VENDOR_FIELDS[key]
+    fields = dict(zip(names, (float(v) for v in pc)))
+    fields.update({name: get(det) for name, get in extra.items()})
+    lost = [a for a in _ANGLES if a not in _CARRIED[key] and getattr(det, a) != 0]
     return fields, lost
 
 

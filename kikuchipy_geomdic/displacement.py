@@ -992,6 +992,27 @@ class DisplacementField:
         return self.u.shape[0]
 
     @property
+    def mean_displacement(self) -> float:
+        """Mean magnitude of the average field (:attr:`mean`) over the ROIs
+        with vectors, as a fraction of the detector width: the paper's
+        objective. NaN when no ROI has a vector.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from kikuchipy_geomdic.displacement import DisplacementField
+        >>> u = np.array([[[3.0, 4.0], [0.0, 0.0]]])  # one pattern, two ROIs
+        >>> f = DisplacementField(u, np.array([[1, 0]]), np.zeros((1, 2, 2)), (50, 100),
+        ...                       (1, 2), "opencv")
+        >>> f.mean_displacement
+        0.05
+        """
+        has = self.total_counts > 0
+        if not has.any():
+            return float("nan")
+        return float(np.linalg.norm(self.mean[has], axis=1).mean() / self.shape[1])
+
+    @property
     def mean(self) -> np.ndarray:
         """Average field :math:`\\bar{\\mathbf{u}}_r` (R, 2), Eq. 2.
 

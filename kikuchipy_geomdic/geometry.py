@@ -53,6 +53,7 @@ __all__ = [
     "EQUIVALENT_PARAMETERS",
     "MapGeometry",
     "check_parameters",
+    "solved_parameters",
     "sample_to_detector_matrix",
     "pc_field",
     "forward_map",
@@ -138,6 +139,27 @@ def check_parameters(names: Sequence[str]) -> tuple[str, ...]:
     if not names:
         raise ValueError("At least one geometry parameter must be given")
     return tuple(n for n in PARAMETERS if n in names)
+
+
+def solved_parameters(names: Sequence[str]) -> tuple[tuple[str, ...], dict[str, str]]:
+    """Return the parameters a solve has columns for, and ``{name: base}``
+    for each one left out because its column is a multiple of a solved
+    one's (:data:`EQUIVALENT_PARAMETERS`: only tilt - sample_tilt is seen).
+
+    Examples
+    --------
+    >>> from kikuchipy_geomdic.geometry import solved_parameters
+    >>> solved_parameters(["pcx", "tilt", "sample_tilt"])
+    (('pcx', 'tilt'), {'sample_tilt': 'tilt'})
+    """
+    solved, split = [], {}
+    for n in names:
+        base = EQUIVALENT_PARAMETERS.get(n, (None,))[0]
+        if base in names:
+            split[n] = base
+        else:
+            solved.append(n)
+    return tuple(solved), split
 
 
 def sample_to_detector_matrix(

@@ -60,6 +60,7 @@ __all__ = [
     "project_arrays",
     "project_derivatives",
     "detector_matrix",
+    "detector_pcs",
     "poor_points",
     "neighbour_seeds",
     "VariantComparison",
@@ -164,7 +165,9 @@ def _smooth_across_equator(hemisphere, other, sigma):
     return ndimage.gaussian_filter(ring, sigma, mode="nearest")[inner]
 
 
-def master_pattern_arrays(master_pattern: EBSDMasterPattern, energy: float) -> MasterPatternArrays:
+def master_pattern_arrays(
+    master_pattern: EBSDMasterPattern | MasterPatternArrays, energy: float
+) -> MasterPatternArrays:
     """Return the hemispheres of *master_pattern* at *energy* as kikuchipy's
     refinement projects them.
 
@@ -172,7 +175,7 @@ def master_pattern_arrays(master_pattern: EBSDMasterPattern, energy: float) -> M
     ----------
     master_pattern
         Lambert :class:`~kikuchipy.signals.EBSDMasterPattern`, one or both
-        hemispheres.
+        hemispheres (or its arrays, returned as they are).
     energy
         Beam energy in kV (selects the slice of a multi-energy pattern).
 
@@ -189,6 +192,8 @@ def master_pattern_arrays(master_pattern: EBSDMasterPattern, energy: float) -> M
     >>> mpa.upper.shape, mpa.upper.dtype.name, mpa.scale
     ((201, 201), 'float32', 100.0)
     """
+    if isinstance(master_pattern, MasterPatternArrays):
+        return master_pattern
     check_master_pattern(master_pattern)
     if master_pattern.data.shape[-1] != master_pattern.data.shape[-2]:
         raise ValueError(
@@ -611,7 +616,16 @@ class OrientationResult:
     converged: np.ndarray
 
 
-def _pcs(detector: EBSDDetector, n: int) -> np.ndarray:
+def detector_pcs(detector: EBSDDetector, n: int) -> np.ndarray:
+    """Return the detector's Bruker PCs as (n, 3), one repeated or n given.
+
+    Examples
+    --------
+    >>> from kikuchipy.detectors import EBSDDetector
+    >>> from kikuchipy_geomdic.orientation import detector_pcs
+    >>> detector_pcs(EBSDDetector(pc=[0.5, 0.3, 0.6]), 2).tolist()
+    [[0.5, 0.3, 0.6], [0.5, 0.3, 0.6]]
+    """
     pcs = np.ascontiguousarray(detector.pc.reshape(-1, 3), dtype=np.float64)
     if pcs.shape[0] == 1:
         return np.repeat(pcs, n, axis=0)
@@ -735,13 +749,9 @@ def refine_patterns(
     q = np.ascontiguousarray(Rotation(rotations).flatten().data, dtype=np.float64)
     if q.shape[0] != n:
         raise ValueError(f"{q.shape[0]} starting orientations for {n} patterns")
-    arrays = (
-        master_pattern
-        if isinstance(master_pattern, MasterPatternArrays)
-        else master_pattern_arrays(master_pattern, energy)
-    )
+    arrays = master_pattern_arrays(master_pattern, energy)
     return refine_arrays(
-        patterns, q, _pcs(detector, n), detector_matrix(detector), arrays, levels, max_step
+        patterns, q, detector_pcs(detector, n), detector_matrix(detector), arrays, levels, max_step
     )
 
 
@@ -850,13 +860,9 @@ def project_patterns(
     (2, 30, 40)
     """
     q = np.ascontiguousarray(Rotation(rotations).flatten().data, dtype=np.float64)
-    arrays = (
-        master_pattern
-        if isinstance(master_pattern, MasterPatternArrays)
-        else master_pattern_arrays(master_pattern, energy)
-    )
+    arrays = master_pattern_arrays(master_pattern, energy)
     return project_arrays(
-        q, _pcs(detector, q.shape[0]), detector_matrix(detector), arrays, detector.shape
+        q, detector_pcs(detector, q.shape[0]), detector_matrix(detector), arrays, detector.shape
     )
 
 

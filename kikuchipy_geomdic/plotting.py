@@ -14,7 +14,6 @@ from collections.abc import Sequence
 import matplotlib.pyplot as plt
 import numpy as np
 
-from kikuchipy_geomdic import study, synthetic
 from kikuchipy_geomdic.geometry import DEFAULT_PARAMETERS
 
 __all__ = [
@@ -216,7 +215,12 @@ def plot_convergence(history):
 
 
 def plot_success(
-    table: np.ndarray, limit: float = 0.04, ax=None, axis: str = "initial_displacement"
+    table: np.ndarray,
+    limit: float = 0.04,
+    ax=None,
+    axis: str = "initial_displacement",
+    ncc_success: float | None = None,
+    misorientation_success: float | None = None,
 ):
     """Plot final NCC and misorientation against the initial displacement
     (the paper's Fig. 8A), strict successes and failures marked.
@@ -234,6 +238,10 @@ def plot_success(
     axis
         Displacement column on the x axis ("initial_displacement" or
         "initial_displacement_eq2", the paper's).
+    ncc_success, misorientation_success
+        The study's success thresholds, drawn as lines when given
+        (:data:`~kikuchipy_geomdic.study.NCC_SUCCESS`,
+        :data:`~kikuchipy_geomdic.study.MISORIENTATION_SUCCESS`).
 
     Returns
     -------
@@ -257,14 +265,16 @@ def plot_success(
             + (", Eq. 2 average)" if axis.endswith("eq2") else ", model)")
         )
         a.set_ylabel(lab)
-    ax[0].axhline(study.NCC_SUCCESS, color="0.7", ls=":", lw=1)
+    if ncc_success is not None:
+        ax[0].axhline(ncc_success, color="0.7", ls=":", lw=1)
     ax[1].set_yscale("log")
-    ax[1].axhline(study.MISORIENTATION_SUCCESS, color="0.7", ls=":", lw=1)
+    if misorientation_success is not None:
+        ax[1].axhline(misorientation_success, color="0.7", ls=":", lw=1)
     ax[0].legend(fontsize=8)
     n = table.size
     fig.suptitle(
-        f"{int(ok.sum())}/{n} strict successes, {int(table['success_ncc'].sum())}/{n} with NCC > "
-        f"{study.NCC_SUCCESS}",
+        f"{int(ok.sum())}/{n} strict successes, {int(table['success_ncc'].sum())}/{n} NCC "
+        "successes",
         fontsize=10,
     )
     return fig
@@ -306,7 +316,10 @@ def plot_heatmaps(
     """
     if material is not None:
         table = table[table["material"] == material]
-    pairs = list(pairs or study._pairs_in(table))
+    if pairs is None:
+        # In order of appearance, as the study ran them
+        pairs = dict.fromkeys(zip(map(str, table["param1"]), map(str, table["param2"])))
+    pairs = list(pairs)
     names = [n for n in DEFAULT_PARAMETERS if any(n in p for p in pairs)]
     defaults = {
         "final_ncc": (0.0, 1.0, "gray"),
@@ -394,7 +407,7 @@ def _status(table, coupling, threshold):
 
 def plot_errors(
     table: np.ndarray,
-    coupling: np.ndarray | None = None,
+    coupling: np.ndarray,
     threshold: float = 0.3,
     success: str = "success_ncc",
     normalised: bool = False,
@@ -412,9 +425,8 @@ def plot_errors(
         Study table.
     coupling
         Coupling matrix of the six parameters
-        (:attr:`~kikuchipy_geomdic.study.PerturbationStudy.coupling`);
-        default from :func:`~kikuchipy_geomdic.study.sensitivities` at the
-        default geometry.
+        (:attr:`~kikuchipy_geomdic.study.PerturbationStudy.coupling`, or
+        :func:`~kikuchipy_geomdic.study.sensitivities`).
     threshold
         Coupling threshold.
     success
@@ -427,8 +439,6 @@ def plot_errors(
     -------
     figure
     """
-    if coupling is None:
-        coupling = study.sensitivities(synthetic.default_geometry((5, 5), (60, 60)))[1]
     sel = table[table[success]] if success else table
     status = _status(sel, coupling, threshold)
     groups = ("active", "positive", "negative", "uncoupled")

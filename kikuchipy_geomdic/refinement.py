@@ -90,6 +90,7 @@ from kikuchipy_geomdic.geometry import (
     check_parameters,
     rotation_vectors,
     rotations_from_vectors,
+    solved_parameters,
 )
 from kikuchipy_geomdic.jacobian import (
     INTENSITY_STEPS,
@@ -461,7 +462,7 @@ def _select_points(
     """The calibration points (N, 2): *points* spread over the usable map
     points, or the explicit array checked; enough for the parameters."""
     pts = _points(points, usable_points(xmap, phase_id).reshape(nav), nav)
-    n_free = len(_solved_parameters(names)[0])
+    n_free = len(solved_parameters(names)[0])
     if len(pts) < max(n_free, 2):
         raise ValueError(
             f"{len(pts)} usable calibration point(s) for {n_free} independent "
@@ -849,15 +850,6 @@ def _ncc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return (a * b).sum(axis=1) / np.sqrt((a * a).sum(axis=1) * (b * b).sum(axis=1))
 
 
-def _mean_displacement(f: dsp.DisplacementField) -> float:
-    """Mean magnitude of the average field over ROIs with vectors, as a
-    fraction of the detector width: the paper's objective."""
-    has = f.total_counts > 0
-    if not has.any():
-        return float("nan")
-    return float(np.linalg.norm(f.mean[has], axis=1).mean() / f.shape[1])
-
-
 def _rms_displacement(f: dsp.DisplacementField, variances: np.ndarray | None = None) -> float:
     """Weighted RMS of the per-pattern ROI displacements, as a fraction of
     the detector width: the joint solver's objective. Weights are vector
@@ -873,20 +865,6 @@ def _rms_displacement(f: dsp.DisplacementField, variances: np.ndarray | None = N
 # --------------------------------------------------------------------- #
 # The joint solver
 # --------------------------------------------------------------------- #
-
-
-def _solved_parameters(names: Sequence[str]) -> tuple[tuple[str, ...], dict[str, str]]:
-    """Parameters the joint solve has columns for, and ``{name: base}``
-    for each parameter left out because its column is a multiple of a
-    solved one's (:data:`~kikuchipy_geomdic.geometry.EQUIVALENT_PARAMETERS`)."""
-    solved, split = [], {}
-    for n in names:
-        base = EQUIVALENT_PARAMETERS.get(n, (None,))[0]
-        if base in names:
-            split[n] = base
-        else:
-            solved.append(n)
-    return tuple(solved), split
 
 
 def _expand(delta: Mapping[str, float], split: Mapping[str, str]) -> dict[str, float]:
@@ -1072,7 +1050,7 @@ def _joint_step(
     choose the free parameters, then up to :data:`MAX_TRIALS` trial
     solves with growing damping until one lowers the displacement."""
     names = problem.parameters
-    solved, split = _solved_parameters(names)
+    solved, split = solved_parameters(names)
     prior_rad = _prior_per_axis(prior)
     state, lam = carry.state, carry.damping
     # Linearise and solve with every parameter: standard errors and steps
@@ -1240,7 +1218,7 @@ def _paper_state(problem: _Problem, geometry, rotations, refined, scores) -> _Pa
         scores=scores,
         refined=refined,
         ncc=float(np.mean(scores)),
-        disp=_mean_displacement(fld),
+        disp=fld.mean_displacement,
     )
 
 
@@ -1275,7 +1253,7 @@ def _paper_loop(
             # Judge the step first by the displacement with the current
             # orientations (a simulation and a DIC pass); only a step that
             # lowers it pays for orientation refinement
-            disp = _mean_displacement(problem.measure(geo, state.rotations))
+            disp = problem.measure(geo, state.rotations).mean_displacement
             ncc = float("nan")
             accepted = bool(disp < state.disp)
             if accepted:
@@ -1717,7 +1695,7 @@ def _full_field(problem, state, prior, kept, first_it) -> _FullField:
     from kikuchipy_geomdic.orientation import master_pattern_arrays
 
     names = problem.parameters
-    solved, split = _solved_parameters(names)
+    solved, split = solved_parameters(names)
     free = [i for i, nm in enumerate(solved) if nm not in kept]
     arrays = master_pattern_arrays(problem.master_pattern, problem.energy)
     prior_rad = _prior_per_axis(prior)
@@ -1803,7 +1781,7 @@ def _standard_errors(problem: _Problem, state: _State, prior) -> dict[str, float
     """Standard errors of every refined parameter at the final state, and
     of the determined tilt difference, from one joint solve."""
     names = problem.parameters
-    solved, split = _solved_parameters(names)
+    solved, split = solved_parameters(names)
     linear = _linearise(problem, state.geometry, state.field, solved)
     update, _ = _joint_solve(
         state.field,

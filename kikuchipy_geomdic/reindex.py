@@ -48,6 +48,7 @@ from kikuchipy_geomdic.orientation import (
     MasterPatternArrays,
     compare_variants,
     detector_matrix,
+    detector_pcs,
     master_pattern_arrays,
     neighbour_seeds,
     poor_points,
@@ -486,16 +487,8 @@ def refine_map(
         raise ValueError(
             f"The detector's shape {detector.shape} differs from the patterns' {shape}"
         )
-    pcs = detector.pc.reshape(-1, 3).astype(np.float64)
-    if pcs.shape[0] == 1:
-        pcs = np.repeat(pcs, n, axis=0)
-    elif pcs.shape[0] != n:
-        raise ValueError(f"The detector has {pcs.shape[0]} PCs for a map of {n} points")
-    arrays = (
-        master_pattern
-        if isinstance(master_pattern, MasterPatternArrays)
-        else master_pattern_arrays(master_pattern, energy)
-    )
+    pcs = detector_pcs(detector, n)
+    arrays = master_pattern_arrays(master_pattern, energy)
     levels = pyramid_levels(shape, levels)
     om = detector_matrix(detector)
 

@@ -68,7 +68,7 @@ from kikuchipy_geomdic import synthetic
 from kikuchipy_geomdic.conventions import atomic_write_text, csv_text
 from kikuchipy_geomdic.geometry import DEFAULT_PARAMETERS, DEFAULT_STEPS, MapGeometry
 from kikuchipy_geomdic.maps import flat_index
-from kikuchipy_geomdic.refinement import _mean_displacement, calibration_points
+from kikuchipy_geomdic.refinement import calibration_points, refine_geometry_dic
 from kikuchipy_geomdic.simulation import simulate_patterns
 from kikuchipy_geomdic.solve import coupling_matrix
 
@@ -87,6 +87,7 @@ __all__ = [
     "perturbation_study",
     "summarise",
     "read_table",
+    "pairs_in",
     "write_table",
     "format_table",
 ]
@@ -295,7 +296,7 @@ def eq2_displacement(
     if not has.any():
         return float("nan"), float("nan")
     model = float(np.linalg.norm(mean[has], axis=1).mean() / geometry_a.shape[1])
-    return model, _mean_displacement(f)
+    return model, f.mean_displacement
 
 
 def sensitivities(
@@ -426,14 +427,29 @@ def _to_table(rows: Sequence[Mapping[str, Any]], columns) -> np.ndarray:
     return out
 
 
-def _pairs_in(table) -> list[tuple[str, str]]:
-    """The parameter pairs of a study table, in order of appearance."""
-    seen = []
-    for p in zip(table["param1"], table["param2"]):
-        p = (str(p[0]), str(p[1]))
-        if p not in seen:
-            seen.append(p)
-    return seen
+def pairs_in(table) -> list[tuple[str, str]]:
+    """Return the parameter pairs of a study table, in order of appearance.
+
+    Parameters
+    ----------
+    table
+        Study table (:attr:`PerturbationStudy.table`).
+
+    Returns
+    -------
+    pairs
+        List of (param1, param2).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from kikuchipy_geomdic.study import pairs_in
+    >>> t = np.array([("pcx", "pcy"), ("pcx", "pcy"), ("pcz", "tilt")],
+    ...              dtype=[("param1", "U12"), ("param2", "U12")])
+    >>> pairs_in(t)
+    [('pcx', 'pcy'), ('pcz', 'tilt')]
+    """
+    return list(dict.fromkeys(zip(map(str, table["param1"]), map(str, table["param2"]))))
 
 
 def read_table(path) -> np.ndarray:
@@ -606,6 +622,8 @@ class PerturbationStudy:
         """Fig. 8A; see :func:`~kikuchipy_geomdic.plotting.plot_success`."""
         from kikuchipy_geomdic import plotting
 
+        kwargs.setdefault("ncc_success", NCC_SUCCESS)
+        kwargs.setdefault("misorientation_success", MISORIENTATION_SUCCESS)
         return plotting.plot_success(self.table, **kwargs)
 
     def plot_heatmaps(self, **kwargs):
@@ -746,8 +764,12 @@ def _run_spec(spec: dict) -> dict:
                 "orientation_prior", synthetic.centred_prior(spec["orientation_error"])
             )
         try:
-            res = sm.refine_geometry(
-                parameters=spec["parameters"], points=pts, show_progressbar=False, **kwargs
+            res = refine_geometry_dic(
+                *sm.start_inputs,
+                parameters=spec["parameters"],
+                points=pts,
+                show_progressbar=False,
+                **kwargs,
             )
         except Exception as exc:  # A failed run is a result, not a crash
             row.update(
@@ -760,7 +782,7 @@ def _run_spec(spec: dict) -> dict:
     scale = spec["scale"]
     row.update(
         initial_displacement_dic=res.history[0]["displacement_before"] if res.history else np.nan,
-        final_displacement=_mean_displacement(res.field_after),
+        final_displacement=res.field_after.mean_displacement,
         final_displacement_model=mean_displacement(res.geometry, truth, res.points),
         initial_ncc=res.history[0]["ncc_before"] if res.history else np.nan,
         final_ncc=float(np.mean(res.xmap.scores)),

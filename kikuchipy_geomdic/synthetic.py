@@ -517,30 +517,19 @@ class SyntheticMap:
     energy: float
     start: str = "centred"
 
-    def refine_geometry(self, **kwargs):
-        """Calibrate the map from its start with
-        :func:`~kikuchipy_geomdic.refinement.refine_geometry_dic`.
-
-        Parameters
-        ----------
-        **kwargs
-            Further arguments of
-            :func:`~kikuchipy_geomdic.refinement.refine_geometry_dic`.
-
-        Returns
-        -------
-        result
-            :class:`~kikuchipy_geomdic.refinement.GeometryRefinementResult`.
-        """
-        from kikuchipy_geomdic.refinement import refine_geometry_dic
-
-        return refine_geometry_dic(
+    @property
+    def start_inputs(self) -> tuple:
+        """The first five arguments of
+        :func:`~kikuchipy_geomdic.refinement.refine_geometry_dic` for a
+        calibration from the start: ``(signal, start_xmap, start_detector,
+        master_pattern, energy)``, so that
+        ``refine_geometry_dic(*sm.start_inputs, **options)``."""
+        return (
             self.signal,
             self.start_xmap,
             self.start_detector,
             self.master_pattern,
             self.energy,
-            **kwargs,
         )
 
 
