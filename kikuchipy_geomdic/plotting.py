@@ -25,6 +25,7 @@ __all__ = [
     "plot_heatmaps",
     "plot_errors",
     "plot_normalised_errors",
+    "plot_variants",
 ]
 
 
@@ -499,4 +500,88 @@ def plot_normalised_errors(table: np.ndarray, pair: tuple[str, str], material: s
         x, [f"{a:+g}\n{b:+g}" for a, b in zip(sel["delta1"], sel["delta2"])], fontsize=5
     )
     ax2.set_xlabel(f"d {pair[0]} / d {pair[1]}")
+    return fig
+
+
+# --------------------------------------------------------------------- #
+# Pseudo-symmetric variants (the paper's Fig. 7)
+# --------------------------------------------------------------------- #
+
+
+def plot_variants(xmap, truth: np.ndarray | None = None, names: Sequence[str] | None = None):
+    """Plot a variant-sensitive reindexing as the paper's Fig. 7: the
+    variant map, the cross-variant margin map and the score histograms.
+
+    Parameters
+    ----------
+    xmap
+        Crystal map from :func:`~kikuchipy_geomdic.reindex.reindex` with
+        ``pseudo_symmetry_ops`` (properties ``variant``, ``confidence``,
+        ``cross_variant_margin``), 1D or 2D.
+    truth
+        True variant index per point (synthetic maps: ``xmap.prop
+        ["variant"]`` of the truth); wrong points are then crossed out and
+        counted.
+    names
+        Variant names by index (e.g.
+        :data:`~kikuchipy_geomdic.synthetic.VARIANT_NAMES`).
+
+    Returns
+    -------
+    figure
+        Three panels: variants (one colour each), margin map, histograms
+        of the confidence index and the margin.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from orix.crystal_map import CrystalMap
+    >>> from orix.quaternion import Rotation
+    >>> from kikuchipy_geomdic.plotting import plot_variants
+    >>> prop = {"variant": np.array([0, 0, 2, 1]), "confidence": np.full(4, 0.8),
+    ...         "cross_variant_margin": np.array([1.5, 1.6, 1.4, 0.2])}
+    >>> xmap = CrystalMap(Rotation.identity(4), x=np.array([0, 1, 0, 1.0]),
+    ...                   y=np.array([0, 0, 1, 1.0]), prop=prop)
+    >>> fig = plot_variants(xmap, truth=np.array([0, 0, 2, 0]))
+    >>> fig.axes[0].get_title()
+    'variant: 3/4 right'
+
+    """
+    from matplotlib.colors import BoundaryNorm, ListedColormap
+
+    missing = [k for k in ("variant", "confidence", "cross_variant_margin") if k not in xmap.prop]
+    if missing:
+        raise ValueError(
+            f"The crystal map has no {', '.join(missing)}: reindex it with pseudo_symmetry_ops"
+        )
+    shape = tuple(xmap.shape) if len(xmap.shape) == 2 else (1, xmap.size)
+    variant = np.asarray(xmap.prop["variant"]).reshape(shape)
+    margin = np.asarray(xmap.prop["cross_variant_margin"]).reshape(shape)
+    conf = np.asarray(xmap.prop["confidence"]).ravel()
+    k = int(max(variant.max(), 0 if truth is None else np.max(truth))) + 1
+    cmap = ListedColormap([plt.get_cmap("tab10")(i) for i in range(k)])
+    norm = BoundaryNorm(np.arange(k + 1) - 0.5, k)
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.8), layout="constrained")
+    im = axes[0].imshow(variant, cmap=cmap, norm=norm, interpolation="nearest")
+    cb = fig.colorbar(im, ax=axes[0], ticks=np.arange(k), shrink=0.8)
+    cb.ax.set_yticklabels([names[i] if names else str(i) for i in range(k)])
+    title = "variant"
+    if truth is not None:
+        wrong = np.asarray(truth).reshape(shape) != variant
+        rows, cols = np.nonzero(wrong)
+        axes[0].plot(cols, rows, "kx", ms=5)
+        title += f": {int((~wrong).sum())}/{wrong.size} right"
+    axes[0].set_title(title)
+    im = axes[1].imshow(margin, cmap="viridis", interpolation="nearest")
+    fig.colorbar(im, ax=axes[1], shrink=0.8)
+    axes[1].set_title("cross-variant margin")
+    bins = np.linspace(min(0.0, conf.min(), margin.min()), max(conf.max(), margin.max()), 40)
+    axes[2].hist(conf, bins=bins, alpha=0.6, label="confidence index")
+    axes[2].hist(margin.ravel(), bins=bins, alpha=0.6, label="margin")
+    axes[2].set_xlabel("score")
+    axes[2].set_ylabel("points")
+    axes[2].legend(fontsize=8)
+    for a in axes[:2]:
+        a.set_xticks([])
+        a.set_yticks([])
     return fig

@@ -470,3 +470,10 @@ def test_pseudo_symmetric_variants_told_apart(bto_mp):
     assert np.median(out.confidence / out.scores) > 0.7
     scores = np.stack([out.prop[f"variant_score_{k}"] for k in range(6)], axis=1)
     np.testing.assert_allclose(scores[np.arange(truth.size), truth], out.scores)
+    # The paper's Fig. 7 view of it, and a map without variants refused
+    from kikuchipy_geomdic.plotting import plot_variants
+
+    fig = plot_variants(out, truth=truth, names=synthetic.VARIANT_NAMES)
+    assert fig.axes[0].get_title() == f"variant: {truth.size}/{truth.size} right"
+    with pytest.raises(ValueError, match="reindex it with pseudo_symmetry_ops"):
+        plot_variants(sm.xmap)
