@@ -178,12 +178,12 @@ class _Recorder:
 
     def __enter__(self):
         o = self._orig
-        o["dic"] = synthetic.SyntheticMap.refine_geometry
+        o["dic"] = comparison.refine_geometry_dic
         o["pw"] = comparison._pattern_wise
         o["ref"] = comparison.refine_orientations
 
-        def dic(sm, **k):
-            res = o["dic"](sm, **k)
+        def dic(*a, **k):
+            res = o["dic"](*a, **k)
             rot = res.xmap.rotations
             self.records.append(
                 dict(
@@ -207,13 +207,13 @@ class _Recorder:
             self.records[-1]["rerefined"] = out.rotations
             return out
 
-        synthetic.SyntheticMap.refine_geometry = dic
+        comparison.refine_geometry_dic = dic
         comparison._pattern_wise, comparison.refine_orientations = pw, ref
         return self
 
     def __exit__(self, *exc):
         o = self._orig
-        synthetic.SyntheticMap.refine_geometry = o["dic"]
+        comparison.refine_geometry_dic = o["dic"]
         comparison._pattern_wise, comparison.refine_orientations = o["pw"], o["ref"]
 
 
