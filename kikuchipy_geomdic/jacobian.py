@@ -369,6 +369,6 @@ def intensity_jacobian(
 
     def column(name, step):
         rot, dpc = parameter_derivatives(geometry, pts, name, step)
-        return np.einsum("npa,a->np", j_rot, rot) + np.einsum("npi,ni->np", j_pc, dpc)
+        return j_rot @ rot + (j_pc @ dpc[..., None])[..., 0]
 
     return simulated, _assemble(names, steps, column, axis=-1), j_rot
