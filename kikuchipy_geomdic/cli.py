@@ -769,6 +769,7 @@ def _refine(args: argparse.Namespace) -> int:
         parameters=args.parameters,
         points=pts,
         solver=args.solver,
+        full_field=False if args.dic_only else None,
         orientation_prior=args.orientation_prior,
         rois=tuple(args.rois),
         max_iterations=args.max_iterations,
@@ -1119,6 +1120,13 @@ def _parser() -> argparse.ArgumentParser:
         default="joint",
         help="joint: geometry and one rotation per point from every pattern's field "
         "(default); paper: the paper's averaged-field loop",
+    )
+    refine.add_argument(
+        "--dic-only",
+        action="store_true",
+        help="skip the full-field stage (Gauss-Newton on the intensities) after the DIC "
+        "stage: for a master pattern from another simulator than the one that "
+        "describes the patterns, whose intensities differ more than its band positions",
     )
     refine.add_argument(
         "--orientation-prior",

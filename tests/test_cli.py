@@ -417,6 +417,27 @@ def test_refine_stored_orientations_and_pc_override(tmp_path, data, capsys):
     assert s["geometry"]["tilt"] == s["start_geometry"]["tilt"]
 
 
+def test_dic_only_skips_the_full_field(tmp_path, data, capsys, monkeypatch):
+    d, _ = data
+    calls = []
+
+    def spy(*args, **kwargs):
+        res = real(*args, **kwargs)
+        calls.append((kwargs["full_field"], [h.get("stage") for h in res.history]))
+        return res
+
+    real = cli.refine_geometry_dic
+    monkeypatch.setattr(cli, "refine_geometry_dic", spy)
+    for flag in ([], ["--dic-only"]):
+        argv = ["refine", d / "map.h5", "--master-pattern", "Si", "--energy", "20"]
+        argv += ["--parameters", "pcx", "pcy", "pcz", "--max-iterations", "1", *FAST]
+        code, _, err = run([*argv, *flag, "--out", tmp_path / str(len(flag))], capsys)
+        assert code == 0, err
+    (default, stages), (dic_only, stages_dic) = calls
+    assert default is None and "full-field" in stages
+    assert dic_only is False and "full-field" not in stages_dic
+
+
 def test_unusable_points_excluded_from_calibration(tmp_path, data, capsys):
     """NaN patterns, non-indexed points, zero and NaN rotations are not
     used; the user is told fewer points than requested are usable."""
