@@ -174,7 +174,7 @@ def _demo(args: argparse.Namespace) -> int:
     truth = sm.xmap.rotations[idx]
     # A start the indexing got wrong is a failed point, not a precision
     rms = res.xmap.prop["dic_rms"]
-    ok = rms < FAILED_POINT_FACTOR * np.median(rms)
+    ok = rms <= FAILED_POINT_FACTOR * np.median(rms)
     for label, rot in (("start", sm.start_xmap.rotations[idx]), ("after", res.xmap.rotations)):
         dev = synthetic.rotation_vectors(~truth[ok] * rot[ok])
         absolute = np.rad2deg(np.linalg.norm(dev, axis=1)).mean()
