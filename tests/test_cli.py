@@ -426,8 +426,10 @@ def test_dic_only_skips_the_full_field(tmp_path, data, capsys, monkeypatch):
         calls.append((kwargs["full_field"], [h.get("stage") for h in res.history]))
         return res
 
-    real = cli.refine_geometry_dic
-    monkeypatch.setattr(cli, "refine_geometry_dic", spy)
+    from kikuchipy_geomdic import refinement
+
+    real = refinement.refine_geometry_dic
+    monkeypatch.setattr(refinement, "refine_geometry_dic", spy)
     for flag in ([], ["--dic-only"]):
         argv = ["refine", d / "map.h5", "--master-pattern", "Si", "--energy", "20"]
         argv += ["--parameters", "pcx", "pcy", "pcz", "--max-iterations", "1", *FAST]
