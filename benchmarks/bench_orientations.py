@@ -220,7 +220,8 @@ def far(args) -> None:
     rng = np.random.default_rng(args.seed + 1)
     wrong = rng.choice(n, int(round(args.misindexed * n)), replace=False)
     start = sm.start_xmap.rotations.flatten().data.copy()
-    start[wrong] = Rotation.random(len(wrong)).data
+    # Uniformly random orientations, from the seeded generator
+    start[wrong] = Rotation(rng.normal(size=(len(wrong), 4))).data
     start = Rotation(start)
     start_xmap = _with_rotations(sm.start_xmap, start)
     pg = sm.master_pattern.phase.point_group
