@@ -3,30 +3,45 @@
 A BaTiO3 stripe-domain map (``synthetic_map(orientations="stripes")``:
 the parent, a 90 deg (+x) and a 180 deg (-z) domain), the start the
 parent's variant everywhere, as an indexer that cannot tell the variants
-apart returns it. Reindexed with ``reindex(..., pseudo_symmetry_ops=...)``
-(this package's solver: every variant of every point refined, the kept one
-chosen by ``orientation.compare_variants``).
+apart returns it, and a starting geometry ``--offset`` off (PC by
+``--offset`` in each of pcx, pcy, pcz, tilt 0.5 deg, azimuthal 0.3 deg).
+Reindexed with ``reindex(..., pseudo_symmetry_ops=...)`` (this package's
+solver: every variant of every point refined, the kept one chosen by
+``orientation.compare_variants``).
 
 ``picks``
-    At the true detector, against dose: the share of points given their
-    true variant, per true variant (base, 180 deg, 90 deg), by the
-    confidence index and by plain NCC (the argmax of ``variant_score_k``),
-    and kikuchipy's ``refine_orientation`` with ``pseudo_symmetry_ops``
-    (best plain NCC over its refined variants); the smallest
-    cross-variant margin above which >= 95 % of the points are right, and
-    the share of points it keeps. ``--mismatch`` reindexes with the coarse
-    ebsdsim master pattern patterns simulated from the de-ebsd one.
+    Against dose: the map calibrated first (``refine_geometry_dic`` with
+    the operators, from the start), then reindexed at the calibrated
+    detector. Per dose the calibration (largest PC error on the map, each
+    PC's error against its standard error) and how often the true variant
+    beats its 180 deg partner and its 90 deg ones by NCC (the confidence
+    index's pairwise margin ``m_ab`` has the sign of ``NCC_a - NCC_b``:
+    the same for both). Per rule the share of points given their true
+    variant per domain (base, 180 deg, 90 deg): the confidence index,
+    plain NCC (the argmax of ``variant_score_k``) and kikuchipy's
+    ``refine_orientation`` with ``pseudo_symmetry_ops`` (best NCC over
+    its refined variants; ``--kikuchipy-doses``: where, it is slow); for
+    selective use, the smallest value of the rule's confidence measure
+    (the cross-variant margin, or the plain NCC gap: best minus
+    second-best NCC) above which >= 95 % of the points are right, and the
+    share of points it keeps. ``--mismatch`` calibrates and reindexes
+    with the coarse ebsdsim master pattern patterns simulated from the
+    de-ebsd one.
 
 ``detectors``
-    The paper's Fig. 7C-D comparison: a map whose starting geometry is
-    ``--offset`` off, reindexed at the nominal (start) detector and at the
-    DIC-calibrated one (``refine_geometry_dic`` with the operators):
-    largest PC error, variant accuracy, mean margin and confidence.
+    The paper's Fig. 7C-D comparison at one dose: reindexed at the
+    nominal (start) detector, the DIC-calibrated one, and kikuchipy's
+    pattern-wise PC refinement (``refine_orientation_projection_center``
+    with the operators, PCs averaged over the points, the start's angles:
+    ``comparison.pattern_wise_geometry``) by Nelder-Mead on
+    ``--nm-points`` points and by differential evolution on
+    ``--de-points`` points with :data:`DE_KWARGS`: largest PC error,
+    variant accuracy, mean margin and confidence.
 
 Usage::
 
     python benchmarks/bench_variants.py picks
-    python benchmarks/bench_variants.py picks --mismatch
+    python benchmarks/bench_variants.py picks --mismatch --methods geomdic --doses 30 300
     python benchmarks/bench_variants.py detectors
 """
 
@@ -42,15 +57,27 @@ import warnings
 import numpy as np
 
 from kikuchipy_geomdic import synthetic
+from kikuchipy_geomdic.comparison import pattern_wise_geometry
+from kikuchipy_geomdic.refinement import calibration_points, refine_geometry_dic
 from kikuchipy_geomdic.reindex import reindex
 
 KINDS = {0: "base", 1: "180 deg", 2: "90 deg"}
+#: RMS error (deg) of the starting orientations; the calibration's
+#: ``orientation_prior`` matches it (the start is centred)
+ORIENTATION_ERROR = 0.3
+#: Differential evolution (SciPy) of the ``detectors`` experiment: far
+#: fewer generations than SciPy's default, which would take hours
+DE_KWARGS = {"seed": 0, "maxiter": 50, "popsize": 15}
+_PC = ("pcx", "pcy", "pcz")
+T0 = time.perf_counter()
 
 
-def _map(args, dose, perturbation, seed):
+def _map(args, dose, seed):
+    off = args.offset
+    perturbation = {"pcx": off, "pcy": -off, "pcz": off, "tilt": 0.5, "azimuthal": 0.3}
     return synthetic.synthetic_map(
         "BaTiO3", (args.rows, args.rows), orientations="stripes", shape=(args.size, args.size),
-        dose=dose, seed=seed, perturbation=perturbation,
+        dose=dose, seed=seed, perturbation=perturbation, orientation_error=ORIENTATION_ERROR,
     )  # fmt: skip
 
 
@@ -62,104 +89,187 @@ def _quiet():
     return stack
 
 
-def margin_threshold(margin: np.ndarray, right: np.ndarray, share: float = 0.95):
-    """The smallest margin above which at least *share* of the points are
-    right, and the fraction of points it keeps (NaN, 0 if none)."""
-    for t in np.sort(margin):
-        keep = margin >= t
+def _calibrate(sm, master_pattern, ops):
+    """``refine_geometry_dic`` from the map's start, and its wall time."""
+    t0 = time.perf_counter()
+    with _quiet():
+        res = refine_geometry_dic(
+            sm.signal, sm.start_xmap, sm.start_detector, master_pattern, sm.energy,
+            pseudo_symmetry_ops=ops, orientation_prior=synthetic.centred_prior(ORIENTATION_ERROR),
+            show_progressbar=False,
+        )  # fmt: skip
+    return res, time.perf_counter() - t0
+
+
+def _reindex(sm, detector, master_pattern, ops, **kw):
+    """``reindex`` of the map's start at *detector*, and its wall time."""
+    t0 = time.perf_counter()
+    with _quiet():
+        out = reindex(
+            sm.signal, sm.start_xmap, detector, master_pattern, sm.energy,
+            pseudo_symmetry_ops=ops, show_progressbar=False, **kw,
+        )  # fmt: skip
+    return out, time.perf_counter() - t0
+
+
+def max_pc_error(detector, sm) -> float:
+    """Largest PC error anywhere on the map."""
+    return float(np.abs(detector.pc.reshape(-1, 3) - sm.detector.pc.reshape(-1, 3)).max())
+
+
+def pc_errors_in_sigma(res, sm) -> np.ndarray:
+    """Each calibrated PC's error over its standard error, at the
+    calibration's reference position (where the standard errors hold)."""
+    ref = np.array([res.geometry.reference])
+    err = res.geometry.pc_at(ref)[0] - sm.geometry.pc_at(ref)[0]
+    return err / np.array([res.standard_errors[k] for k in _PC])
+
+
+def threshold(confidence: np.ndarray, right: np.ndarray, share: float = 0.95):
+    """The smallest *confidence* above which at least *share* of the
+    points are right, and the fraction of points it keeps (NaN, 0 if
+    none)."""
+    for t in np.sort(confidence):
+        keep = confidence >= t
         if right[keep].mean() >= share:
             return float(t), float(keep.mean())
     return float("nan"), 0.0
 
 
+def variant_scores(xmap) -> np.ndarray:
+    """The NCC of each variant candidate (N, 6) of a reindexed map."""
+    k = len(synthetic.VARIANT_NAMES)
+    return np.stack([xmap.prop[f"variant_score_{i}"] for i in range(k)], axis=1)
+
+
+def ncc_gap(scores: np.ndarray) -> np.ndarray:
+    """Best minus second-best NCC of each point."""
+    top = np.sort(scores, axis=1)
+    return top[:, -1] - top[:, -2]
+
+
+def pairwise_right(scores: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """The share of points whose true variant has a higher NCC than its
+    180 deg partner, and than every one of its 90 deg ones."""
+    n = np.arange(truth.size)
+    # VARIANT_NAMES pairs +-z, +-x, +-y: the 180 deg partner flips bit 0
+    partner = truth ^ 1
+    ninety = np.ones_like(scores, dtype=bool)
+    ninety[n, truth] = ninety[n, partner] = False
+    own = scores[n, truth]
+    vs180 = own > scores[n, partner]
+    vs90 = own > np.where(ninety, scores, -np.inf).max(axis=1)
+    return float(vs180.mean()), float(vs90.mean())
+
+
+def _accuracy(variant, truth) -> list[float]:
+    right = variant == truth
+    return [right[truth == k].mean() for k in KINDS]
+
+
 def picks(args) -> None:
     ops = synthetic.variant_operators()[1:]
     mp = synthetic.master_pattern("BaTiO3", kind="ebsdsim") if args.mismatch else None
-    print(
-        f"{'dose':>6s} {'rule':<22s} {'base':>6s} {'180deg':>7s} {'90deg':>6s} "
-        f"{'margin t95':>10s} {'kept':>5s} {'time s':>7s}"
-    )
+    kp_doses = args.doses if args.kikuchipy_doses is None else args.kikuchipy_doses
+    cal_rows, rule_rows = [], []
     for dose in args.doses:
-        sm = _map(args, dose, {}, args.seed)
+        sm = _map(args, dose, args.seed)
         truth = sm.xmap.prop["variant"]
         cal = mp or sm.master_pattern
-        t0 = time.perf_counter()
-        with _quiet():
-            out = reindex(
-                sm.signal, sm.start_xmap, sm.detector, cal, 20, pseudo_symmetry_ops=ops,
-                show_progressbar=False,
-            )  # fmt: skip
-        sec = time.perf_counter() - t0
-        scores = np.stack([out.prop[f"variant_score_{k}"] for k in range(6)], axis=1)
-        rules = {"confidence index": out.variant, "plain NCC": scores.argmax(axis=1)}
-        if "kikuchipy" in args.methods:
-            t1 = time.perf_counter()
-            with _quiet():
-                nm = reindex(
-                    sm.signal, sm.start_xmap, sm.detector, cal, 20, pseudo_symmetry_ops=ops,
-                    method="kikuchipy", show_progressbar=False,
-                )  # fmt: skip
-            rules["kikuchipy NM (NCC)"] = nm.pseudo_symmetry_index
-            nm_sec = time.perf_counter() - t1
-        for name, v in rules.items():
-            right = v == truth
-            acc = [right[truth == k].mean() for k in KINDS]
-            t, kept = (
-                margin_threshold(out.cross_variant_margin, right)
-                if name == "confidence index"
-                else (np.nan, np.nan)
-            )
-            sec_r = nm_sec if name.startswith("kikuchipy") else sec
-            print(
-                f"{dose:6g} {name:<22s} {acc[0]:6.1%} {acc[1]:7.1%} {acc[2]:6.1%} "
-                f"{t:10.3f} {kept:5.0%} {sec_r:7.1f}"
-            )
+        res, t_cal = _calibrate(sm, cal, ops)
+        out, sec = _reindex(sm, res.detector, cal, ops)
+        scores = variant_scores(out)
+        nsig = pc_errors_in_sigma(res, sm)
+        cal_rows.append(
+            (dose, max_pc_error(res.detector, sm), *nsig, *pairwise_right(scores, truth), t_cal)
+        )
+        rules = {
+            "confidence index": (out.variant, out.cross_variant_margin, sec),
+            "plain NCC": (scores.argmax(axis=1), ncc_gap(scores), sec),
+        }
+        if "kikuchipy" in args.methods and dose in kp_doses:
+            nm, nm_sec = _reindex(sm, res.detector, cal, ops, method="kikuchipy")
+            rules["kikuchipy NM (NCC)"] = (nm.pseudo_symmetry_index, None, nm_sec)
+        for name, (v, conf, t) in rules.items():
+            t95, kept = (np.nan, np.nan) if conf is None else threshold(conf, v == truth)
+            rule_rows.append((dose, name, *_accuracy(v, truth), t95, kept, t))
+        print(f"dose {dose:g} done ({time.perf_counter() - T0:.0f} s)", file=sys.stderr)
+    print(
+        f"{'dose':>6s} {'max PC err':>10s} {'pcx/sig':>8s} {'pcy/sig':>8s} {'pcz/sig':>8s} "
+        f"{'NCC>180':>8s} {'NCC>90':>7s} {'cal s':>6s}"
+    )
+    for d, e, sx, sy, sz, p180, p90, t in cal_rows:
+        print(f"{d:6g} {e:10.2e} {sx:+8.2f} {sy:+8.2f} {sz:+8.2f} {p180:8.1%} {p90:7.1%} {t:6.0f}")
+    print()
+    print(
+        f"{'dose':>6s} {'rule':<20s} {'base':>6s} {'180deg':>7s} {'90deg':>6s} "
+        f"{'t95':>7s} {'kept':>5s} {'time s':>7s}"
+    )
+    for d, name, a0, a1, a2, t95, kept, t in rule_rows:
+        print(f"{d:6g} {name:<20s} {a0:6.1%} {a1:7.1%} {a2:6.1%} {t95:7.3f} {kept:5.0%} {t:7.1f}")
+    n = {k: int((sm.xmap.prop["variant"] == k).sum()) for k in KINDS}
+    print(
+        f"({args.rows} x {args.rows} map, {args.size} px, points per domain "
+        f"{', '.join(f'{KINDS[k]} {v}' for k, v in n.items())}; t95: the cross-variant "
+        "margin (confidence index), the best-minus-second NCC gap (plain NCC))"
+    )
 
 
 def detectors(args) -> None:
-    from kikuchipy_geomdic.refinement import refine_geometry_dic
-
     ops = synthetic.variant_operators()[1:]
-    off = args.offset
-    perturbation = {"pcx": off, "pcy": -off, "pcz": off, "tilt": 0.5, "azimuthal": 0.3}
-    sm = _map(args, args.doses[0], perturbation, args.seed)
+    sm = _map(args, args.doses[0], args.seed)
     truth = sm.xmap.prop["variant"]
-    t0 = time.perf_counter()
-    with _quiet():
-        res = refine_geometry_dic(
-            *sm.start_inputs, pseudo_symmetry_ops=ops, show_progressbar=False
+    nav = sm.geometry.navigation_shape
+    res, t_dic = _calibrate(sm, sm.master_pattern, ops)
+    dets = {
+        "nominal": (sm.start_detector, 0.0, "-"),
+        "DIC-calibrated": (res.detector, t_dic, f"{len(res.points)}"),
+    }
+    for method, n, kw in (
+        ("nelder-mead", args.nm_points, None),
+        ("differential-evolution", args.de_points, DE_KWARGS),
+    ):
+        t0 = time.perf_counter()
+        pw = pattern_wise_geometry(
+            sm, calibration_points(nav, n), method, de_kwargs=kw, pseudo_symmetry_ops=ops
         )
-    t_cal = time.perf_counter() - t0
+        name = {"nelder-mead": "kikuchipy NM avg", "differential-evolution": "kikuchipy DE avg"}
+        dets[name[method]] = (pw.geometry.detector(), time.perf_counter() - t0, f"{n}")
+        print(f"{method} done", file=sys.stderr)
     print(
-        f"{'detector':<16s} {'max PC err':>10s} {'base':>6s} {'180deg':>7s} {'90deg':>6s} "
-        f"{'margin':>7s} {'confidence':>10s}"
+        f"{'detector':<17s} {'points':>6s} {'cal s':>6s} {'max PC err':>10s} {'base':>6s} "
+        f"{'180deg':>7s} {'90deg':>6s} {'margin':>7s} {'confidence':>10s}"
     )
-    for name, det in (("nominal", sm.start_detector), ("DIC-calibrated", res.detector)):
-        with _quiet():
-            out = reindex(
-                sm.signal, sm.start_xmap, det, sm.master_pattern, 20, pseudo_symmetry_ops=ops,
-                show_progressbar=False,
-            )  # fmt: skip
-        err = np.abs(det.pc.reshape(-1, 3) - sm.detector.pc.reshape(-1, 3)).max()
-        right = out.variant == truth
-        acc = [right[truth == k].mean() for k in KINDS]
+    for name, (det, t, n) in dets.items():
+        out, _ = _reindex(sm, det, sm.master_pattern, ops)
+        acc = _accuracy(out.variant, truth)
         print(
-            f"{name:<16s} {err:10.2e} {acc[0]:6.1%} {acc[1]:7.1%} {acc[2]:6.1%} "
-            f"{out.cross_variant_margin.mean():7.3f} {out.confidence.mean():10.3f}"
+            f"{name:<17s} {n:>6s} {t:6.0f} {max_pc_error(det, sm):10.2e} {acc[0]:6.1%} "
+            f"{acc[1]:7.1%} {acc[2]:6.1%} {out.cross_variant_margin.mean():7.3f} "
+            f"{out.confidence.mean():10.3f}"
         )
-    print(f"(calibration {t_cal:.0f} s; standard errors {res.standard_errors})")
+    nsig = ", ".join(f"{k} {v:+.2f}" for k, v in zip(_PC, pc_errors_in_sigma(res, sm)))
+    print(
+        f"({args.rows} x {args.rows} map, {args.size} px, dose {args.doses[0]:g}; DIC PC "
+        f"errors / sigma: {nsig}; DE: {DE_KWARGS})"
+    )
 
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("experiment", choices=["picks", "detectors"])
-    p.add_argument("--rows", type=int, default=9)
+    p.add_argument("--rows", type=int, default=15)
     p.add_argument("--size", type=int, default=120)
-    p.add_argument("--doses", type=float, nargs="+", default=[10, 30, 100, 300, 1000])
+    p.add_argument("--doses", type=float, nargs="+", default=[0.3, 1, 3, 10, 30, 100, 300])
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--mismatch", action="store_true", help="reindex with the ebsdsim pattern")
+    p.add_argument("--offset", type=float, default=0.03, help="PC offset of the start")
+    p.add_argument("--mismatch", action="store_true", help="picks: the ebsdsim pattern")
     p.add_argument("--methods", nargs="+", default=["geomdic", "kikuchipy"])
-    p.add_argument("--offset", type=float, default=0.02, help="detectors: PC offset")
+    p.add_argument(
+        "--kikuchipy-doses", type=float, nargs="+", help="picks: doses of kikuchipy (all)"
+    )
+    p.add_argument("--nm-points", type=int, default=25, help="detectors: Nelder-Mead points")
+    p.add_argument("--de-points", type=int, default=6, help="detectors: DE points")
     args = p.parse_args(argv)
     if args.experiment == "detectors" and len(args.doses) > 1:
         args.doses = [100.0]

@@ -20,11 +20,14 @@ import time
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
+from orix.crystal_map import CrystalMap
+from orix.quaternion import Rotation
 
 from kikuchipy_geomdic import synthetic
+from kikuchipy_geomdic.geometry import MapGeometry
 from kikuchipy_geomdic.maps import flat_index
 from kikuchipy_geomdic.refinement import calibration_points, refine_geometry_dic
 from kikuchipy_geomdic.reindex import quiet, refine_orientations, stack_signal
@@ -35,7 +38,11 @@ from kikuchipy_geomdic.study import (
     _misorientation,
 )
 
-__all__ = ["compare_methods"]
+__all__ = ["PatternWise", "compare_methods", "pattern_wise_geometry"]
+
+#: The paper's trust region of kikuchipy's pattern-wise refinement: 3
+#: Euler angles (deg), 3 PC fractions
+TRUST_REGION = (3, 3, 3, 0.05, 0.05, 0.05)
 
 
 def _pattern_wise(
@@ -49,6 +56,7 @@ def _pattern_wise(
     method,
     method_kwargs,
     trust_region,
+    pseudo_symmetry_ops=None,
 ):
     """kikuchipy's pattern-wise orientation and PC refinement of the points."""
     signal, xmap = stack_signal(experimental, start_rot, phase)
@@ -59,10 +67,102 @@ def _pattern_wise(
             start_geo.detector(points),
             master_pattern,
             energy,
+            pseudo_symmetry_ops=pseudo_symmetry_ops,
             method=method,
             method_kwargs=dict(method_kwargs or {}),
             trust_region=trust_region,
         )
+
+
+def _point_patterns(sm: synthetic.SyntheticMap, flat: np.ndarray) -> np.ndarray:
+    """The patterns (N, rows, columns) of the map's points *flat*."""
+    data = sm.signal.data
+    if hasattr(data, "compute"):
+        data = data.compute()
+    nav = sm.geometry.navigation_shape
+    data = np.asarray(data).reshape((nav[0] * nav[1],) + tuple(sm.geometry.shape))
+    return data[flat].astype(np.float32)
+
+
+class PatternWise(NamedTuple):
+    """What :func:`pattern_wise_geometry` returns."""
+
+    #: The start geometry with its PC replaced by the points' mean PC, at
+    #: their mean position (angles unchanged)
+    geometry: MapGeometry
+    #: Orientations refined with the PCs (of the points, in their order)
+    xmap: CrystalMap
+    #: Pattern-wise PCs (N, 3)
+    pcs: np.ndarray
+
+
+def pattern_wise_geometry(
+    sm: synthetic.SyntheticMap,
+    points: np.ndarray,
+    method: str = "nelder-mead",
+    trust_region: Sequence[float] = TRUST_REGION,
+    de_kwargs: Mapping[str, Any] | None = None,
+    pseudo_symmetry_ops: Rotation | None = None,
+) -> PatternWise:
+    """Calibrate a map's PC as the paper's section 3.1 did with kikuchipy.
+
+    kikuchipy's
+    :meth:`~kikuchipy.signals.EBSD.refine_orientation_projection_center`
+    refines orientation and PC of each point from the map's start; the
+    PCs are then averaged over the points. These methods cannot refine
+    the detector angles: the start's stay.
+
+    Parameters
+    ----------
+    sm
+        Synthetic map (:func:`~kikuchipy_geomdic.synthetic.synthetic_map`).
+    points
+        Points (N, 2) as (row, column).
+    method
+        "nelder-mead" or "differential-evolution".
+    trust_region
+        kikuchipy trust region (3 Euler angles in deg, 3 PC fractions;
+        the bounds of differential evolution).
+    de_kwargs
+        ``method_kwargs`` of differential evolution (SciPy); default
+        ``{"seed": 0}``.
+    pseudo_symmetry_ops
+        Passed to kikuchipy: each point's variants are refined too and the
+        best NCC kept, with its PC.
+
+    Returns
+    -------
+    pattern_wise
+        :class:`PatternWise`.
+    """
+    if method == "nelder-mead":
+        m, mkw = "minimize", {"method": "Nelder-Mead"}
+    elif method == "differential-evolution":
+        m, mkw = "differential_evolution", dict(de_kwargs or {"seed": 0})
+    else:
+        raise ValueError(
+            f"method must be 'nelder-mead' or 'differential-evolution', not {method!r}"
+        )
+    pts = np.asarray(points, dtype=int)
+    flat = flat_index(pts, sm.geometry.navigation_shape)
+    phase = sm.start_xmap.phases[sm.start_xmap.phases.ids[-1]].deepcopy()
+    start = sm.start_geometry
+    xmap_r, det_r = _pattern_wise(
+        _point_patterns(sm, flat),
+        sm.start_xmap.rotations[flat],
+        phase,
+        start,
+        pts,
+        sm.master_pattern,
+        sm.energy,
+        m,
+        mkw,
+        list(trust_region),
+        pseudo_symmetry_ops=pseudo_symmetry_ops,
+    )
+    pcs = det_r.pc.reshape(-1, 3)
+    geometry = replace(start, pc=pcs.mean(axis=0), reference=tuple(pts.mean(axis=0)))
+    return PatternWise(geometry, xmap_r, pcs)
 
 
 def compare_methods(
@@ -72,7 +172,7 @@ def compare_methods(
     method_points: Mapping[str, int] | None = None,
     refine_kwargs: Mapping[str, Any] | None = None,
     dic_configs: Mapping[str, Mapping[str, Any]] | None = None,
-    trust_region: Sequence[float] = (3, 3, 3, 0.05, 0.05, 0.05),
+    trust_region: Sequence[float] = TRUST_REGION,
     de_kwargs: Mapping[str, Any] | None = None,
     scheduler: str | None = "synchronous",
     verbose: bool = False,
@@ -159,13 +259,7 @@ def compare_methods(
     else:
         pts_all = np.asarray(points, dtype=int)
     truth = sm.geometry
-    start = sm.start_geometry
     phase = sm.start_xmap.phases[sm.start_xmap.phases.ids[-1]].deepcopy()
-    data = sm.signal.data
-    if hasattr(data, "compute"):
-        data = data.compute()
-    data = np.asarray(data).reshape((nav[0] * nav[1],) + tuple(truth.shape))
-    start_rot_all = sm.start_xmap.rotations
     true_rot_all = sm.xmap.rotations
     method_points = dict(method_points or {})
     configs = {"dic": dict(refine_kwargs or {})}
@@ -180,7 +274,7 @@ def compare_methods(
             n_m = method_points.get(method)
             pts = pts_all if n_m is None else calibration_points(nav, int(n_m))
             flat = flat_index(pts, nav)
-            exp = data[flat].astype(np.float32)
+            exp = _point_patterns(sm, flat)
             t0 = time.perf_counter()
             row: dict[str, Any] = {"method": method, "n_points": len(pts)}
             if method in configs:
@@ -200,28 +294,10 @@ def compare_methods(
                 row["time_rerefine"] = 0.0
                 row["iterations"] = len(res.history)
             elif method in ("nelder-mead", "differential-evolution"):
-                if method == "nelder-mead":
-                    m, mkw = "minimize", {"method": "Nelder-Mead"}
-                else:
-                    m, mkw = "differential_evolution", dict(de_kwargs or {"seed": 0})
-                xmap_r, det_r = _pattern_wise(
-                    exp,
-                    start_rot_all[flat],
-                    phase,
-                    start,
-                    pts,
-                    sm.master_pattern,
-                    sm.energy,
-                    m,
-                    mkw,
-                    list(trust_region),
-                )
+                pw = pattern_wise_geometry(sm, pts, method, trust_region, de_kwargs)
                 row["time"] = time.perf_counter() - t0
-                pcs = det_r.pc.reshape(-1, 3)
-                rot = xmap_r.rotations
-                ncc = float(np.mean(xmap_r.scores))
-                # PC averaged over the points: the PC at their mean position
-                geo = replace(start, pc=pcs.mean(axis=0), reference=tuple(pts.mean(axis=0)))
+                geo, pcs, rot = pw.geometry, pw.pcs, pw.xmap.rotations
+                ncc = float(np.mean(pw.xmap.scores))
                 # Scatter of pattern-wise PCs about the (true-angle) PC plane
                 plane = truth.pc_at(pts) - truth.pc_at(pts).mean(axis=0)
                 resid = pcs - pcs.mean(axis=0) - plane
