@@ -251,6 +251,23 @@ def test_full_field_reaches_the_bound(blurred, blurred_results):
     assert "full-field" in stages and "full-field" not in [h.get("stage") for h in dic.history]
 
 
+def test_full_field_skipped_when_dic_leaves_the_pc_undetermined(si_mp):
+    # At 0.3 counts/px the DIC stage cannot place the geometry; the full
+    # field, which needs a start in its basin, is skipped with a warning
+    # and the DIC stage's standard errors, which cover its error, are kept
+    sm = synthetic.synthetic_map(
+        si_mp, (4, 4), shape=(60, 60), seed=0, dose=0.3, start="uncentred",
+        orientation_error=0.5,
+    )  # fmt: skip
+    with pytest.warns(UserWarning, match="full-field stage was skipped"):
+        res = _refine(sm, points=16, parameters=["pcx", "pcy", "pcz"])
+    assert "full-field" not in [h.get("stage") for h in res.history]
+    err, _ = _errors(res, sm)
+    for name in ("pcx", "pcy", "pcz"):
+        assert res.standard_errors[name] > 1e-3
+        assert abs(err[name]) <= 3 * res.standard_errors[name]
+
+
 def test_point_spread_is_estimated(blurred, blurred_results):
     from kikuchipy_geomdic.orientation import master_pattern_arrays
     from kikuchipy_geomdic.refinement import _point_spread
