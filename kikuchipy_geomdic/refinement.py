@@ -660,6 +660,11 @@ FULL_FIELD_STOP = 0.25
 #: off, the full field reached the same geometry as after five).
 FULL_FIELD_BASIN = 0.003
 
+#: The full-field stage holds a parameter whose standard error exceeds
+#: this many times its :data:`DETERMINACY_LIMITS`: the patterns do not
+#: see it.
+FULL_FIELD_HOLD = 10
+
 #: Smallest pixel noise variance of the full field, as a fraction of its
 #: pattern's mean.
 MIN_PIXEL_VARIANCE = 0.3
@@ -1799,7 +1804,8 @@ def _full_field(problem, state, prior, first_it, report) -> _FullField:
     inverse of its noise variance (:func:`_pixel_variances`), the
     simulation blurred by the point spread that matches the patterns best.
 
-    Every parameter is free here, also those the DIC stage kept at their
+    Every parameter is free here unless the patterns do not see it at all
+    (:data:`FULL_FIELD_HOLD`), also those the DIC stage kept at their
     start as poorly determined: near the solution the full field's
     standard errors hold (errors within 3 sigma on matching data), and
     they are smaller (0.07 deg for the azimuthal angle on 100 patterns of
@@ -1836,10 +1842,24 @@ def _full_field(problem, state, prior, first_it, report) -> _FullField:
         # standard errors over nine maps)
         cov = full.covariance
         se = np.sqrt(np.clip(np.diag(cov), 0, None))
-        delta = dict(zip(solved, map(float, full.delta)))
+        # A parameter the patterns do not see at all stays where it is
+        # (measured: angles with standard errors of 600 deg on 9 real Ni
+        # patterns stepped by hundreds of degrees, which undid the PC's
+        # step too)
+        free = [
+            i for i, nm in enumerate(solved) if se[i] <= FULL_FIELD_HOLD * DETERMINACY_LIMITS[nm]
+        ]
+        if not free:
+            break
+        upd = full
+        if len(free) < len(solved):
+            upd = solve_joint(
+                jg[..., free], jr, residual, weights, prior=prior_rad, offsets=offsets
+            )
+        delta = dict(zip([solved[i] for i in free], map(float, upd.delta)))
         chi2_prev, last = full.chi2, (geometry, rotations)
         geometry = geometry.updated(_expand(delta, split))
-        rotations = rotations * rotations_from_vectors(full.rotations)
+        rotations = rotations * rotations_from_vectors(upd.rotations)
         history.append(
             _step_record(
                 first_it + it,
@@ -1860,7 +1880,7 @@ def _full_field(problem, state, prior, first_it, report) -> _FullField:
             f"point spread {psf:.2f} px"
         )
         # Steps this small leave the covariance as it was
-        if all(abs(d) <= FULL_FIELD_STOP * e for d, e in zip(full.delta, se)):
+        if all(abs(delta[solved[i]]) <= FULL_FIELD_STOP * se[i] for i in free):
             break
     se = dict(zip(solved, map(float, np.sqrt(np.clip(np.diag(cov), 0, None)))))
     if "tilt" in names or "sample_tilt" in names:
