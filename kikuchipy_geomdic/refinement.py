@@ -671,7 +671,11 @@ MIN_PIXEL_VARIANCE = 0.3
 
 #: Range and grid (px) of the search for the detector's point spread.
 PSF_MAX = 3.0
-PSF_STEP = 0.25
+PSF_STEP = 0.5
+
+#: A Gaussian blur narrower than this (px) is left out: its weight on a
+#: neighbouring pixel is below 3e-4.
+PSF_NEGLIGIBLE = 0.25
 
 
 @dataclass(frozen=True)
@@ -1698,7 +1702,7 @@ def _blur(a: np.ndarray, shape: tuple[int, int], sigma: float) -> np.ndarray:
     """Patterns (N, P, ...) blurred by a Gaussian of *sigma* px in the
     pattern plane: the detector's point spread, linear, so it applies to
     Jacobian columns as to patterns."""
-    if sigma <= 0:
+    if sigma < PSF_NEGLIGIBLE:
         return a
     img = a.reshape(a.shape[:1] + tuple(shape) + a.shape[2:])
     sig = (0, sigma, sigma) + (0,) * (a.ndim - 2)
