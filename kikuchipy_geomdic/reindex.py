@@ -46,7 +46,6 @@ from kikuchipy_geomdic.maps import check_signal_and_detector, check_whole_map, n
 from kikuchipy_geomdic.orientation import (
     MAX_STEP,
     MasterPatternArrays,
-    OrientationResult,
     compare_variants,
     detector_matrix,
     detector_pcs,
@@ -573,27 +572,22 @@ def _refine_points(patterns, q, pcs, arrays, om, levels, max_step, dic_rms, ops)
     with pseudo-symmetry *ops*, from each variant of the start too, the
     variant kept by :func:`~kikuchipy_geomdic.orientation.compare_variants`."""
     k = patterns.shape[0]
-    res = refine_arrays(patterns, q, pcs, om, arrays, levels, max_step)
+    candidates = q[:, None, :]
     if ops is not None:
-        # The variants of the refined start are within a fraction of a
-        # degree of their own optimum (the variants' patterns are nearly
-        # alike, so the start refines to the lattice whatever variant it
-        # is): full resolution alone refines them. Crystal-frame operators
-        # act on the left (op * rotation)
-        variants = _qmul(ops[None, :, :], res.rotations.data[:, None, :])
-        n_ops = variants.shape[1]
-        more = refine_arrays(
-            np.repeat(patterns, n_ops, axis=0),
-            variants.reshape(-1, 4),
-            np.repeat(pcs, n_ops, axis=0),
-            om,
-            arrays,
-            (1,),
-            max_step,
-        )
-        res = _stack_results(res, more, n_ops)
-    m = 1 if ops is None else 1 + len(ops)
+        # Crystal-frame operators act on the left (op * rotation)
+        variants = _qmul(ops[None, :, :], q[:, None, :])
+        candidates = np.concatenate([candidates, variants], axis=1)
+    m = candidates.shape[1]
     out = np.full((k, _width(ops)), np.nan)
+    res = refine_arrays(
+        np.repeat(patterns, m, axis=0),
+        candidates.reshape(-1, 4),
+        np.repeat(pcs, m, axis=0),
+        om,
+        arrays,
+        levels,
+        max_step,
+    )
     rq = res.rotations.data.reshape(k, m, 4)
     if m > 1:
         cmp = compare_variants(patterns, rq, pcs, om, arrays)
@@ -611,23 +605,6 @@ def _refine_points(patterns, q, pcs, arrays, om, levels, max_step, dic_rms, ops)
     if dic_rms:
         out[:, _RMS] = _dic_rms(patterns, out[:, _Q], pcs, om, arrays)
     return out
-
-
-def _stack_results(first: OrientationResult, more: OrientationResult, m: int):
-    """Per pattern, *first*'s result followed by its *m* rows of *more*."""
-    k = len(first.scores)
-
-    def join(a, b):
-        a, b = np.asarray(a), np.asarray(b)
-        a, b = a.reshape((k, 1) + a.shape[1:]), b.reshape((k, m) + b.shape[1:])
-        return np.concatenate([a, b], axis=1).reshape((k * (m + 1),) + a.shape[2:])
-
-    return OrientationResult(
-        rotations=Rotation(join(first.rotations.data, more.rotations.data)),
-        scores=join(first.scores, more.scores),
-        evaluations=join(first.evaluations, more.evaluations),
-        converged=join(first.converged, more.converged),
-    )
 
 
 def _refine_block(patterns, q, pcs, todo, *, arrays, om, levels, max_step, dic_rms, ops):
