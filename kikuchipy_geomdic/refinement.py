@@ -671,7 +671,7 @@ MIN_PIXEL_VARIANCE = 0.3
 
 #: Range and grid (px) of the search for the detector's point spread.
 PSF_MAX = 3.0
-PSF_STEP = 0.5
+PSF_STEP = 0.25
 
 #: A Gaussian blur narrower than this (px) is left out: its weight on a
 #: neighbouring pixel is below 3e-4.
@@ -1719,7 +1719,13 @@ def _point_spread(problem, arrays, geometry, rotations) -> float:
     e = ori.standardise(problem.experimental.reshape(n, -1).astype(np.float64))
     s0 = ori.project_patterns(rotations, geometry.detector(problem.points), arrays).reshape(n, -1)
     sigmas = np.arange(0.0, PSF_MAX + 1e-9, PSF_STEP)
-    ncc = [(ori.standardise(_blur(s0, shape, sg)) * e).mean() for sg in sigmas]
+    ncc = []
+    for sg in sigmas:
+        ncc.append((ori.standardise(_blur(s0, shape, sg)) * e).mean())
+        # Past the peak twice in a row: the rest of the grid cannot win
+        if len(ncc) > 2 and ncc[-1] < ncc[-2] < max(ncc):
+            break
+    sigmas = sigmas[: len(ncc)]
     k = int(np.argmax(ncc))
     if 0 < k < len(sigmas) - 1:
         # Vertex of the parabola through the best and its neighbours
