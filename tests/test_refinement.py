@@ -253,15 +253,18 @@ def test_full_field_reaches_the_bound(blurred, blurred_results):
 
 def test_full_field_skipped_when_dic_leaves_the_pc_undetermined(si_mp):
     # At 0.3 counts/px the DIC stage cannot place the geometry; the full
-    # field, which needs a start in its basin, is skipped with a warning
-    # and the DIC stage's standard errors, which cover its error, are kept
+    # field, which needs a start in its basin, is skipped with a warning,
+    # and the DIC stage runs again unbinned, as full_field=False runs it:
+    # its standard errors cover its error
     sm = synthetic.synthetic_map(
-        si_mp, (4, 4), shape=(60, 60), seed=0, dose=0.3, start="uncentred",
+        si_mp, (4, 4), shape=(120, 120), seed=0, dose=0.3, start="uncentred",
         orientation_error=0.5,
     )  # fmt: skip
     with pytest.warns(UserWarning, match="full-field stage was skipped"):
         res = _refine(sm, points=16, parameters=["pcx", "pcy", "pcz"])
     assert "full-field" not in [h.get("stage") for h in res.history]
+    alone = _refine(sm, points=16, parameters=["pcx", "pcy", "pcz"], full_field=False)
+    assert res.parameters == alone.parameters
     err, _ = _errors(res, sm)
     for name in ("pcx", "pcy", "pcz"):
         assert res.standard_errors[name] > 1e-3
