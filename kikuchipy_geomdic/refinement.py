@@ -1542,10 +1542,10 @@ def refine_geometry_dic(
         reaches the Cramer-Rao bound where the master pattern describes
         the data; with another simulator's master pattern it was more
         accurate than DIC alone but its standard errors no longer cover
-        every error: then pass False (see the docs). It is skipped, with
-        a warning, when the DIC stage leaves a PC parameter undetermined
-        (standard error above :data:`DETERMINACY_LIMITS`): the full field
-        needs a start in its basin.
+        every error: then pass False (see the docs). By default it is
+        skipped, with a warning, when the DIC stage leaves a PC parameter
+        undetermined (standard error above :data:`DETERMINACY_LIMITS`):
+        the full field needs a start in its basin; True runs it anyway.
     show_progressbar
         Whether to show a progress bar over the iterations (tqdm, on
         stderr) and print a header and one line per trial step (stdout).
@@ -1590,6 +1590,9 @@ def refine_geometry_dic(
     names = _check_options(parameters, solver, jacobian, orientation_prior)
     nav = navigation_shape(signal)
     phase_id = _check_inputs(signal, xmap, detector, master_pattern, phase, nav)
+    # Left at its default, the full field runs only where the DIC stage
+    # has brought the geometry into its basin; True forces it
+    guarded = full_field is None
     if full_field is None:
         full_field = solver == "joint"
     dic_kw = dict(rois=tuple(rois), binning=binning, dic=dic, seed=seed)
@@ -1641,7 +1644,7 @@ def refine_geometry_dic(
         outcome = dic_stage(problem, progress, FULL_FIELD_BASIN if full_field else 0.0)
         standard_errors = _standard_errors(problem, outcome.state, orientation_prior)
         loose = [n for n in _PC if standard_errors.get(n, 0) > DETERMINACY_LIMITS[n]]
-        if full_field and loose:
+        if guarded and full_field and loose:
             # The full field needs a start in its basin, which a PC the
             # DIC stage leaves undetermined is not (measured: at 0.3
             # counts/px it converged 2.9e-3 off at 9.7 of its standard
