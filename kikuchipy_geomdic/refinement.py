@@ -865,14 +865,12 @@ class _PaperState(_State):
 @dataclass(frozen=True)
 class _LoopOutcome:
     """What a loop returns: the final state, one history record per trial
-    step, whether it converged, the field at the start and the parameters
-    kept at their value in the last iteration."""
+    step, whether it converged and the field at the start."""
 
     state: _State
     history: list[dict[str, Any]]
     converged: bool
     field_before: dsp.DisplacementField
-    kept: tuple[str, ...]
 
 
 def _ncc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -1033,13 +1031,12 @@ class _JointCarry:
 @dataclass(frozen=True)
 class _JointStep:
     """The outcome of one iteration of the joint loop: the carry for the
-    next, the history records of its trial steps, the parameters it kept
-    and why the loop ends, if it does: "converged" (settled, nothing left
-    to free) or "stalled" (no trial step lowered the displacement)."""
+    next, the history records of its trial steps and why the loop ends, if
+    it does: "converged" (settled, nothing left to free) or "stalled" (no
+    trial step lowered the displacement)."""
 
     carry: _JointCarry
     records: tuple[dict[str, Any], ...]
-    kept: tuple[str, ...]
     end: str | None = None
 
 
@@ -1096,11 +1093,11 @@ def _joint_step(
     if (carry.settled and weak == carry.kept) or not free:
         # Variants are told apart only near the solution: a wrong one
         # is then re-fitted from its correct variant
-        rot = problem.best_variants(state.geometry, state.rotations)
-        if np.array_equal(rot.data, state.rotations.data) or not free:
-            return _JointStep(carry, (), weak, "converged")
-        state = _State.measure(problem, state.geometry, rot)
-        offsets = problem.rotation_offsets(rot)
+        changed = _best_variant_state(problem, state) if free else None
+        if changed is None:
+            return _JointStep(carry, (), "converged")
+        state = changed
+        offsets = problem.rotation_offsets(state.rotations)
         linear = _linearise(problem, state.geometry, state.field, solved)
     columns = [solved.index(n) for n in free]
     # Trial solves. Steps are judged by the objective of the solve: each
@@ -1159,11 +1156,10 @@ def _joint_step(
             return _JointStep(
                 _JointCarry(trial, lam / DAMPING_FACTOR, hold, settled, weak, moved),
                 tuple(records),
-                weak,
             )
         lam = max(DAMPING_FACTOR * lam, MIN_RETRY_DAMPING)
     return _JointStep(
-        _JointCarry(state, lam, hold, False, weak, carry.moved), tuple(records), weak, "stalled"
+        _JointCarry(state, lam, hold, False, weak, carry.moved), tuple(records), "stalled"
     )
 
 
@@ -1183,11 +1179,10 @@ def _joint_loop(
     start = _State.measure(problem, geometry0, problem.start_rotations)
     carry = _JointCarry(start, damping)
     history: list[dict[str, Any]] = []
-    kept: tuple[str, ...] = ()
     converged = False
     for it in range(max_iterations):
         step = _joint_step(problem, carry, it, prior, progress.write)
-        carry, kept = step.carry, step.kept
+        carry = step.carry
         history.extend(step.records)
         progress.advance(history[-1] if step.records else None)
         if step.end == "converged":
@@ -1197,12 +1192,11 @@ def _joint_loop(
         if last.get("accepted") and last["displacement_after"] < basin:
             # In the full field's basin; the variants, told apart only
             # this close, are chosen before it takes over
-            state = carry.state
-            rot = problem.best_variants(state.geometry, state.rotations)
-            if np.array_equal(rot.data, state.rotations.data):
+            changed = _best_variant_state(problem, carry.state)
+            if changed is None:
                 converged = True
                 break
-            carry = replace(carry, state=_State.measure(problem, state.geometry, rot))
+            carry = replace(carry, state=changed)
         if step.end == "stalled":
             # Nothing lowers the displacement any more: the measurement's
             # floor, if an earlier step got there
@@ -1210,7 +1204,16 @@ def _joint_loop(
             break
     else:
         converged = carry.settled
-    return _LoopOutcome(carry.state, history, converged, start.field, kept)
+    return _LoopOutcome(carry.state, history, converged, start.field)
+
+
+def _best_variant_state(problem: _Problem, state: _State) -> _State | None:
+    """The state measured again with each point's best variant
+    (:meth:`_Problem.best_variants`), or None if no point changes."""
+    rot = problem.best_variants(state.geometry, state.rotations)
+    if np.array_equal(rot.data, state.rotations.data):
+        return None
+    return _State.measure(problem, state.geometry, rot)
 
 
 def _consistent(problem, geometry, field, free, offsets, prior) -> bool:
@@ -1332,7 +1335,7 @@ def _paper_loop(
     # The orientations refined at the final geometry, not anchored: the
     # best estimate of each orientation given the calibrated geometry
     state = replace(state, rotations=state.refined)
-    return _LoopOutcome(state, history, converged, field_before, ())
+    return _LoopOutcome(state, history, converged, field_before)
 
 
 # --------------------------------------------------------------------- #
