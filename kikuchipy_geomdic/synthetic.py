@@ -93,6 +93,10 @@ __all__ = [
     "MIN_PRIOR",
     "centred_prior",
     "degrade_patterns",
+    "Camera",
+    "MODERATE",
+    "REAL_NI",
+    "camera_counts",
 ]
 
 _DATA = resources.files("kikuchipy_geomdic") / "data"
@@ -498,12 +502,18 @@ class SyntheticMap:
         The starting point: perturbed geometry and starting orientations
         made by the start model *start*.
     master_pattern
-        The master pattern the map was simulated from.
+        The master pattern to calibrate with: the one the map was
+        simulated from unless *simulator* says otherwise.
     energy
         Beam energy in kV.
     start
         Start model of the orientations, one of :data:`START_MODELS`
         (see :func:`synthetic_map`).
+    simulator
+        The master pattern the patterns were simulated from.
+    camera
+        The :class:`Camera` that recorded them, or None for model-family
+        patterns (:func:`degrade_patterns`).
     """
 
     signal: EBSD
@@ -516,6 +526,8 @@ class SyntheticMap:
     master_pattern: EBSDMasterPattern
     energy: float
     start: str = "centred"
+    simulator: EBSDMasterPattern | None = None
+    camera: Camera | None = None
 
     @property
     def start_inputs(self) -> tuple:
@@ -586,6 +598,8 @@ def synthetic_map(
     lazy: bool = False,
     seed: int = 0,
     start: str = "centred",
+    camera: Camera | None = None,
+    simulator: EBSDMasterPattern | str | None = None,
 ) -> SyntheticMap:
     """Return a synthetic EBSD map with a known geometry and orientations.
 
@@ -665,6 +679,21 @@ def synthetic_map(
           cores, after numba's first compilation); with *lazy* the
           patterns are simulated chunk by chunk during the refinement, in
           bounded memory.
+    camera
+        Make the patterns as a camera records and a user processes them
+        (:class:`Camera`: background lobe, per-grain brightness, blur,
+        Poisson counts in uint16, static and dynamic background removal):
+        realistic data, on which the calibration's figures are measured.
+        Then *dose*, *background* and *blur* must be left at their
+        defaults. None (default): ``a * blur(S) + b`` plus Poisson noise
+        (:func:`degrade_patterns`), the full-field model's own family, a
+        best case.
+    simulator
+        The master pattern the *data* are simulated from, or its *kind*
+        for :func:`master_pattern` ("emsoft", "ebsdsim", ...); default
+        *master_pattern*. Another simulator of the same phase than the
+        master pattern the map is calibrated with (``SyntheticMap.master_pattern``)
+        is what a user has.
 
     Returns
     -------
@@ -694,6 +723,21 @@ def synthetic_map(
     if isinstance(master_pattern, str):
         master_pattern = globals()["master_pattern"](master_pattern)
     check_master_pattern(master_pattern)
+    if simulator is None:
+        simulator = master_pattern
+    elif isinstance(simulator, str):
+        simulator = globals()["master_pattern"](master_pattern.phase.name, kind=simulator)
+    check_master_pattern(simulator)
+    if simulator.phase.name != master_pattern.phase.name:
+        raise ValueError(
+            f"simulator is of phase {simulator.phase.name!r}, master_pattern of "
+            f"{master_pattern.phase.name!r}: both must be the same phase"
+        )
+    if camera is not None and (dose is not None or background or blur):
+        raise ValueError(
+            "Give either camera or dose/background/blur: a Camera sets its own "
+            "noise, background and blur"
+        )
     nav = tuple(int(n) for n in navigation_shape)
     if len(nav) != 2 or min(nav) < 1:
         raise ValueError(f"navigation_shape must be (rows, columns), not {navigation_shape}")
@@ -754,13 +798,25 @@ def synthetic_map(
         detector.pc = detector.pc.reshape(nav + (3,))
         start_detector.pc = start_detector.pc.reshape(nav + (3,))
 
+    if camera is not None:
+        degrade = dict(camera=camera, seed=noise_seed)
+        # One brightness per grain (or domain, or point of a random map)
+        label = prop.get("grain", prop.get("variant", np.arange(n)))
+        if orientations == "single":
+            label = np.zeros(n, dtype=int)
+        draws = np.random.default_rng([noise_seed, 1]).uniform(-1, 1, int(label.max()) + 1)
+        brightness = 1 + camera.brightness * draws[label]
+    else:
+        degrade = dict(dose=dose, background=background, blur=blur, seed=noise_seed)
+        brightness = np.ones(n)
     data = _simulate_map(
-        master_pattern,
+        simulator,
         rot.data.reshape(nav + (4,)),
         detector.pc,
         geometry,
         energy,
-        dict(dose=dose, background=background, blur=blur, seed=noise_seed),
+        degrade,
+        brightness,
     )
     axes = [
         {"name": "y", "size": nav[0], "scale": dy, "units": "um"},
@@ -772,6 +828,8 @@ def synthetic_map(
         signal = LazyEBSD(data, axes=axes)
     else:
         signal = EBSD(data.compute(scheduler="threads"), axes=axes)
+    if camera is not None:
+        camera.process(signal)
     if start == "indexed":
         start_rot = _refine_orientations(
             signal, start_xmap, start_detector, master_pattern, energy
@@ -791,6 +849,8 @@ def synthetic_map(
         master_pattern=master_pattern,
         energy=float(energy),
         start=start,
+        simulator=simulator,
+        camera=camera,
     )
 
 
@@ -842,7 +902,7 @@ def _crystal_map(rot, nav, steps, mp_phase, prop) -> CrystalMap:
     )
 
 
-def _simulate_map(master_pattern, quats, pcs, geometry, energy, degrade) -> da.Array:
+def _simulate_map(master_pattern, quats, pcs, geometry, energy, degrade, brightness) -> da.Array:
     nav = quats.shape[:2]
     sig = tuple(geometry.shape)
     # Rows of patterns per chunk: about 32 MiB of float32 output each
@@ -850,23 +910,26 @@ def _simulate_map(master_pattern, quats, pcs, geometry, energy, degrade) -> da.A
     chunks = (min(rows_per_chunk, nav[0]), nav[1])
     q = da.from_array(quats, chunks=chunks + (4,))
     p = da.from_array(pcs, chunks=chunks + (3,))
+    b = da.from_array(brightness.reshape(nav + (1,)), chunks=chunks + (1,))
+    camera = degrade.get("camera")
     return da.map_blocks(
         _simulate_block,
         q,
         p,
+        b,
         master_pattern=master_pattern,
         template=geometry.detector(points=[[0, 0]]),
         energy=energy,
         degrade=degrade,
         nav_cols=nav[1],
-        dtype=np.float32,
+        dtype=np.float32 if camera is None else np.uint16,
         chunks=q.chunks[:2] + ((sig[0],), (sig[1],)),
         drop_axis=2,
         new_axis=[2, 3],
     )
 
 
-def _simulate_block(q, p, master_pattern, template, energy, degrade, nav_cols, block_info=None):
+def _simulate_block(q, p, b, master_pattern, template, energy, degrade, nav_cols, block_info=None):
     shape = q.shape[:2]
     det = copy_detector(template, pc=p.reshape(-1, 3))
     patterns = simulate_patterns(master_pattern, Rotation(q.reshape(-1, 4)), det, energy)
@@ -874,7 +937,12 @@ def _simulate_block(q, p, master_pattern, template, energy, degrade, nav_cols, b
     (r0, _), (c0, _) = block_info[0]["array-location"][:2]
     rows, cols = np.indices(shape)
     flat = ((rows + r0) * nav_cols + cols + c0).ravel()
-    out = degrade_patterns(patterns, index=flat, **degrade)
+    degrade = dict(degrade)
+    camera = degrade.pop("camera", None)
+    if camera is None:
+        out = degrade_patterns(patterns, index=flat, **degrade)
+    else:
+        out = camera_counts(patterns, p.reshape(-1, 3), camera, b.ravel(), degrade["seed"], flat)
     return out.reshape(shape + patterns.shape[1:])
 
 
@@ -926,6 +994,140 @@ def degrade_patterns(
             mean = max(float(out[k].mean()), 1e-12)
             lam = np.clip(out[k], 0, None) * (dose / mean)
             out[k] = rng.poisson(lam).astype(np.float32)
+    return out
+
+
+@dataclass(frozen=True)
+class Camera:
+    """How a camera records patterns and a user processes them.
+
+    Patterns made by :func:`degrade_patterns` (``a * blur(S) + b`` plus
+    shot noise) are in the full-field model's own family; patterns from a
+    microscope are not. A :class:`Camera` makes them as a microscope and a
+    user do (:func:`camera_counts`, then :meth:`process`):
+
+    1. expected counts ``dose * b_i * B(x, y) * (1 + contrast * K)``, K
+       the clean pattern standardised, B a smooth background lobe peaking
+       below the pattern centre (corners about 0.3 of the peak), b_i a
+       brightness per grain (``1 +- brightness``);
+    2. the phosphor's blur (*blur* px) of the expected counts, then
+       Poisson noise, stored as uint16;
+    3. kikuchipy's static background removal (dividing by the map's mean
+       pattern, which on a map of few grains still holds bands: a faint
+       inverted ghost common to every pattern) and dynamic background
+       removal (dividing by a Gaussian-blurred copy), each stretching the
+       result to the full uint16 range.
+
+    Attributes
+    ----------
+    dose
+        Mean counts per pixel (30 for kikuchipy's real Ni patterns).
+    contrast
+        Kikuchi contrast: relative amplitude of the standardised pattern
+        on the background.
+    brightness
+        Relative spread of the brightness between grains.
+    blur
+        Standard deviation (px) of the phosphor's Gaussian blur.
+    static, dynamic
+        Whether the user removes the static and the dynamic background.
+
+    Examples
+    --------
+    >>> from kikuchipy_geomdic.synthetic import Camera, synthetic_map
+    >>> sm = synthetic_map("Si", (3, 3), shape=(40, 40), camera=Camera(dose=30))
+    >>> sm.signal.data.dtype.name
+    'uint16'
+    """
+
+    dose: float = 150.0
+    contrast: float = 0.1
+    brightness: float = 0.1
+    blur: float = 0.6
+    static: bool = True
+    dynamic: bool = True
+
+    def process(self, signal: EBSD) -> None:
+        """Remove the static and dynamic backgrounds of a raw map in place,
+        as a user does with kikuchipy (lazy signals stay lazy)."""
+        if self.static:
+            mean = signal.data.mean(axis=(0, 1))
+            if isinstance(mean, da.Array):
+                mean = mean.compute()
+            static_bg = np.round(mean).astype(signal.data.dtype)
+            signal.remove_static_background("divide", static_bg=static_bg, show_progressbar=False)
+        if self.dynamic:
+            signal.remove_dynamic_background("divide", show_progressbar=False)
+
+
+#: Moderate noise: 150 counts per pixel.
+MODERATE = Camera(dose=150.0)
+#: The noise of kikuchipy's real Ni patterns: 30 counts per pixel.
+REAL_NI = Camera(dose=30.0)
+
+
+def camera_counts(
+    patterns: np.ndarray,
+    pcs: np.ndarray,
+    camera: Camera,
+    brightness: np.ndarray | None = None,
+    seed: int = 0,
+    index: np.ndarray | None = None,
+) -> np.ndarray:
+    """Return the raw counts a camera records for clean patterns.
+
+    Steps 1 and 2 of :class:`Camera`: a background lobe at each pattern's
+    PC, the Kikuchi pattern as a small modulation of it, the phosphor's
+    blur, then Poisson noise.
+
+    Parameters
+    ----------
+    patterns
+        Clean simulated patterns (n, rows, columns).
+    pcs
+        Bruker PC of each pattern (n, 3): the lobe peaks below it and
+        widens with pcz.
+    camera
+        The :class:`Camera`.
+    brightness
+        Relative brightness b_i of each pattern (n,), default 1.
+    seed
+        Seed; pattern *k* draws its noise from ``(seed, index[k])``.
+    index
+        Map index of each pattern (default ``arange(n)``).
+
+    Returns
+    -------
+    counts
+        uint16 array of the shape of *patterns*.
+    """
+    p = np.asarray(patterns, dtype=np.float64)
+    n, nr, nc = p.shape
+    pcs = np.asarray(pcs, dtype=float).reshape(n, 3)
+    if index is None:
+        index = np.arange(n)
+    if brightness is None:
+        brightness = np.ones(n)
+    flat = p.reshape(n, -1)
+    k = (flat - flat.mean(axis=1, keepdims=True)) / np.maximum(
+        flat.std(axis=1, keepdims=True), 1e-12
+    )
+    y, x = np.mgrid[0:nr, 0:nc] + 0.5
+    out = np.empty(p.shape, dtype=np.uint16)
+    for i in range(n):
+        # The backscatter lobe: peak a fifth of the height below the PC,
+        # width growing with the detector distance
+        x0, y0, width = pcs[i, 0] * nc, (pcs[i, 1] + 0.2) * nr, pcs[i, 2] * nc
+        lobe = np.exp(-((x - x0) ** 2 + (y - y0) ** 2) / (2 * (0.8 * width) ** 2))
+        lobe /= lobe.mean()
+        expected = (
+            camera.dose * brightness[i] * lobe * (1 + camera.contrast * k[i].reshape(nr, nc))
+        )
+        expected = np.clip(expected, 0, None)
+        if camera.blur:
+            expected = ndimage.gaussian_filter(expected, camera.blur)
+        rng = np.random.default_rng([seed, int(index[i])])
+        out[i] = np.minimum(rng.poisson(expected), np.iinfo(np.uint16).max)
     return out
 
 
