@@ -197,6 +197,14 @@ class GeometryRefinementResult:
         its standard error; paper: NCC gain below ``ncc_tolerance`` and
         the displacement no longer falling) rather than by
         *max_iterations* or by rejected steps.
+    adequacy
+        The check of the full-field stage against the DIC stage
+        (:func:`full_field_adequacy`): the step the DIC stage would take
+        from the full field's solution per parameter in units of their
+        combined standard errors (``"z"``), whether it passed
+        (``"consistent"``), which stage's result is reported
+        (``"stage"``) and a sentence saying so (``"verdict"``). Empty
+        when no full field ran.
     """
 
     detector: EBSDDetector
@@ -218,6 +226,7 @@ class GeometryRefinementResult:
     field_after: dsp.DisplacementField
     converged: bool
     steps: dict[str, float] = field(default_factory=dict)
+    adequacy: dict[str, Any] = field(default_factory=dict)
 
     def __repr__(self) -> str:
         return self.table()
@@ -276,6 +285,8 @@ class GeometryRefinementResult:
             lines.append(line)
         if any(not np.isfinite(self.standard_errors.get(n, 0)) for n in self.parameter_names):
             notes.append("tilt and sample_tilt: only their difference is determined")
+        if self.adequacy:
+            notes.append(self.adequacy["verdict"])
         return "\n".join(lines + notes)
 
     def plot_displacement(self, **kwargs):
@@ -1667,17 +1678,27 @@ def refine_geometry_dic(
                 problem = replace(problem, dic_kwargs={**problem.dic_kwargs, "binning": 1})
                 outcome = dic_stage(problem, progress, 0.0)
                 standard_errors = None
-    if full_field:
-        ff = _full_field(
-            problem,
-            outcome.state,
-            orientation_prior,
-            1 + max((h["iteration"] for h in outcome.history), default=-1),
-            progress.write,
-        )
-        state = _State.measure(problem, ff.geometry, ff.rotations)
-        outcome = replace(outcome, state=state, history=outcome.history + ff.history)
-        standard_errors = ff.standard_errors
+        adequacy = {}
+        if full_field:
+            ff = _full_field(
+                problem,
+                outcome.state,
+                orientation_prior,
+                1 + max((h["iteration"] for h in outcome.history), default=-1),
+                progress.write,
+            )
+            state = _State.measure(problem, ff.geometry, ff.rotations)
+            adequacy = _adequacy(problem, ff, _dic_update(problem, state, orientation_prior))
+            progress.write(f"  {adequacy['verdict']}")
+            if adequacy["consistent"]:
+                outcome = replace(outcome, state=state, history=outcome.history + ff.history)
+                standard_errors = ff.standard_errors
+            else:
+                warnings.warn(adequacy["verdict"], UserWarning, stacklevel=2)
+                if problem.dic_kwargs["binning"] > 1 and binning is None:
+                    problem = replace(problem, dic_kwargs={**problem.dic_kwargs, "binning": 1})
+                outcome = dic_stage(problem, progress, 0.0)
+                standard_errors = None
     rotations, scores = _final_orientations(problem, outcome.state, solver, refine_kwargs)
     return _build_result(
         problem,
@@ -1691,6 +1712,7 @@ def refine_geometry_dic(
         orientation_prior,
         solver,
         standard_errors,
+        adequacy,
     )
 
 
@@ -1702,50 +1724,169 @@ def refine_geometry_dic(
 @dataclass(frozen=True)
 class _FullField:
     """What the full-field stage returns: the geometry and orientations it
-    reached, its standard errors and one record per step."""
+    reached, its standard errors, one record per step and the (solved)
+    parameters it held."""
 
     geometry: MapGeometry
     rotations: Rotation
     standard_errors: dict[str, float]
     history: list[dict[str, Any]]
+    held: tuple[str, ...] = ()
 
 
-def _blur(a: np.ndarray, shape: tuple[int, int], sigma: float) -> np.ndarray:
-    """Patterns (N, P, ...) blurred by a Gaussian of *sigma* px in the
-    pattern plane: the detector's point spread, linear, so it applies to
-    Jacobian columns as to patterns."""
-    if sigma < PSF_NEGLIGIBLE:
-        return a
-    img = a.reshape(a.shape[:1] + tuple(shape) + a.shape[2:])
-    sig = (0, sigma, sigma) + (0,) * (a.ndim - 2)
-    return ndimage.gaussian_filter(img, sig, mode="nearest").reshape(a.shape)
+def _gaussian_matrix(n: int, sigma: float, truncate: float = 4.0) -> np.ndarray:
+    """The (n, n) matrix of a 1D Gaussian filter of *sigma* px with
+    edge-replicating borders (scipy's ``mode="nearest"``)."""
+    if sigma <= 0:
+        return np.eye(n)
+    return ndimage.gaussian_filter1d(np.eye(n), sigma, axis=0, mode="nearest", truncate=truncate)
 
 
-def _point_spread(problem, arrays, geometry, rotations) -> float:
-    """The Gaussian blur (px) of the simulated patterns that correlates
-    best with the experimental ones: the model of the detector's point
-    spread. Unmodelled, a blur of 0.6 px moved pcz by 11 standard errors
-    (8e-5) on 96 px Ni patterns, band widths being what pcz scales."""
+@dataclass(frozen=True)
+class _Processing:
+    """The full field's model of how the compared patterns were made from
+    the simulation ``S``: the detector's point spread (a Gaussian of
+    *psf* px) and a Kikuchi *contrast* on a flat background,
+    ``x = 1 + contrast * K`` with ``K`` the blurred pattern standardised;
+    with *ghost*, divided by the map's mean pattern (kikuchipy's static
+    background removal with the map's own mean, which holds bands on a
+    map of few grains); then divided by its Gaussian low-pass of
+    *highpass* px (kikuchipy's dynamic background removal; 0: none). A
+    *contrast* of 0 is the limit of a faint pattern, where the divisions
+    become subtractions: ``K - ghost``, high-passed. Every step is
+    differentiable, so Jacobian columns go through it with the pattern.
+
+    Fitted as ``a * S + b`` (the model family of ``synthetic.degrade_patterns``),
+    processed Ni patterns moved pcz by 5 standard errors."""
+
+    shape: tuple[int, int]
+    psf: float = 0.0
+    highpass: float = 0.0
+    contrast: float = 0.0
+    ghost: bool = False
+
+    @cached_property
+    def _lowpass_factors(self) -> tuple[np.ndarray, ...]:
+        """Low-rank factors ``A @ B`` of the rows' and columns' Gaussian
+        low-pass matrices: at a sigma of an eighth of the width, 13 of
+        96 singular values are above 1e-4, so four thin products replace
+        two square ones."""
+        factors = []
+        for n in self.shape:
+            u, sv, vt = np.linalg.svd(_gaussian_matrix(n, self.highpass))
+            k = int((sv > LOWPASS_RANK_TOLERANCE * sv[0]).sum())
+            factors.append((u[:, :k], sv[:k, None] * vt[:k]))
+        (ar, br), (ac, bc) = factors
+        # Columns act from the right, transposed; all contiguous (BLAS was
+        # 40x slower with a transposed view)
+        return tuple(np.ascontiguousarray(m) for m in (ar, br, bc.T, ac.T))
+
+    def _planes(self, a: np.ndarray) -> np.ndarray:
+        # (N, P, K) -> contiguous pattern planes (N, K, rows, columns):
+        # matmul over strided ones was 100x slower
+        n, k = a.shape[0], int(np.prod(a.shape[2:], dtype=int))
+        return np.ascontiguousarray(np.moveaxis(a.reshape((n,) + self.shape + (k,)), 3, 1))
+
+    def _flat(self, planes: np.ndarray, shape) -> np.ndarray:
+        return np.ascontiguousarray(np.moveaxis(planes, 1, 3)).reshape(shape)
+
+    def _lowpass(self, planes: np.ndarray) -> np.ndarray:
+        ar, br, bct, act = self._lowpass_factors
+        return ar @ (br @ planes @ bct) @ act
+
+    def __call__(
+        self, s0: np.ndarray, columns: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """The model patterns (N, P) of simulated ones *s0*, and their
+        derivatives (N, P, K) from those of *s0*, *columns*."""
+        n, p = s0.shape
+        x = self._planes(s0[..., None])
+        d = None if columns is None else self._planes(columns)
+        if self.psf >= PSF_NEGLIGIBLE:
+            blur = (0, 0, self.psf, self.psf)
+            x = ndimage.gaussian_filter(x, blur, mode="nearest")
+            if d is not None:
+                d = ndimage.gaussian_filter(d, blur, mode="nearest")
+        # Standardised, and the derivatives of the standardisation
+        axes = (2, 3)
+        x = x - x.mean(axis=axes, keepdims=True)
+        sd = np.sqrt((x**2).mean(axis=axes, keepdims=True))
+        x = x / sd
+        if d is not None:
+            d = d - d.mean(axis=axes, keepdims=True)
+            d = (d - x * (x * d).mean(axis=axes, keepdims=True)) / sd
+        if self.ghost:
+            x = x - x.mean(axis=0, keepdims=True) if not self.contrast else x
+        if self.contrast:
+            c = self.contrast
+            den = 1 + c * x.mean(axis=0, keepdims=True) if self.ghost else 1.0
+            x = (1 + c * x) / den
+            if d is not None:
+                d = c * d / den
+            if self.highpass:
+                low = self._lowpass(x)
+                x = x / low
+                if d is not None:
+                    d = (d - x * self._lowpass(d)) / low
+        elif self.highpass:
+            x = x - self._lowpass(x)
+            if d is not None:
+                d = d - self._lowpass(d)
+        return self._flat(x, (n, p)), None if d is None else self._flat(d, columns.shape)
+
+
+#: Singular values of the low-pass matrices kept, relative to the largest.
+LOWPASS_RANK_TOLERANCE = 1e-4
+
+#: High-passes (fractions of the pattern width) the full field tries as
+#: the model of the user's dynamic background removal (kikuchipy's
+#: default: a width / 8), keeping the one whose model correlates best
+#: with the patterns; 0: none.
+HIGHPASS_GRID = (0.0, 1 / 12, 1 / 8, 1 / 6)
+
+#: Kikuchi contrasts (relative to the background) the full field tries.
+CONTRAST_GRID = (0.0, 0.05, 0.1, 0.15, 0.2, 0.3)
+
+
+def _processed_ncc(e, s0, processing):
+    return float((ori.standardise(processing(s0)[0]) * e).mean())
+
+
+def _estimate_processing(problem, arrays, geometry, rotations) -> _Processing:
+    """The model of what was done to the patterns (:class:`_Processing`)
+    that correlates best with them, one property after the other: the
+    high-pass (:data:`HIGHPASS_GRID`), the point spread (px; unmodelled,
+    a blur of 0.6 px moved pcz by 11 standard errors, band widths being
+    what pcz scales), whether the map's mean was divided out, the
+    contrast (:data:`CONTRAST_GRID`)."""
     n = len(problem.points)
-    shape = problem.experimental.shape[1:]
+    shape = tuple(problem.experimental.shape[1:])
     e = ori.standardise(problem.experimental.reshape(n, -1).astype(np.float64))
     s0 = ori.project_patterns(rotations, geometry.detector(problem.points), arrays).reshape(n, -1)
+
+    def best(candidates):
+        return max(candidates, key=lambda proc: _processed_ncc(e, s0, proc))
+
+    proc = best(_Processing(shape, 2 * PSF_STEP, h * shape[1]) for h in HIGHPASS_GRID)
     sigmas = np.arange(0.0, PSF_MAX + 1e-9, PSF_STEP)
     ncc = []
     for sg in sigmas:
-        ncc.append((ori.standardise(_blur(s0, shape, sg)) * e).mean())
+        ncc.append(_processed_ncc(e, s0, replace(proc, psf=sg)))
         # Past the peak twice in a row: the rest of the grid cannot win
         if len(ncc) > 2 and ncc[-1] < ncc[-2] < max(ncc):
             break
     sigmas = sigmas[: len(ncc)]
     k = int(np.argmax(ncc))
+    psf = float(sigmas[k])
     if 0 < k < len(sigmas) - 1:
         # Vertex of the parabola through the best and its neighbours
         a, b, c = ncc[k - 1], ncc[k], ncc[k + 1]
         den = a - 2 * b + c
         if den < 0:
-            return float(sigmas[k] + PSF_STEP * 0.5 * (a - c) / den)
-    return float(sigmas[k])
+            psf = float(sigmas[k] + PSF_STEP * 0.5 * (a - c) / den)
+    proc = replace(proc, psf=psf)
+    proc = best(replace(proc, ghost=g) for g in (False, True))
+    return best(replace(proc, contrast=c) for c in CONTRAST_GRID)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -1771,21 +1912,22 @@ def _project_out(a, unit):
     return out
 
 
-def _intensity_system(problem, arrays, geometry, rotations, solved, psf=0.0):
+def _intensity_system(problem, arrays, geometry, rotations, solved, processing: _Processing):
     """Residuals (N, P), geometry and rotation Jacobians with each
-    pattern's gain and offset eliminated, and the noise variances (N,);
-    the model blurred by *psf* px."""
+    pattern's gain and offset eliminated, and the pixel noise variances
+    (N, P); the model made by *processing*."""
     n = len(problem.points)
-    shape = problem.experimental.shape[1:]
     e = problem.experimental.reshape(n, -1).astype(np.float64)
     s0, jg, jr = intensity_jacobian(
         geometry, problem.points, rotations, arrays, solved, INTENSITY_STEPS
     )
-    s0, jg, jr = (_blur(a, shape, psf) for a in (s0, jg, jr))
+    k = jg.shape[2]
+    s0, cols = processing(s0, np.concatenate([jg, jr], axis=2))
+    jg, jr = cols[..., :k], cols[..., k:]
     # Gain and offset of each pattern, then projected out of every column:
     # exactly their elimination (variable projection). The two basis
-    # vectors, the constant and the centred simulation, are orthogonal:
-    # the projection is a centring and one dot product per column
+    # vectors, the constant and the centred model, are orthogonal: the
+    # projection is a centring and one dot product per column
     sc = s0 - s0.mean(axis=1, keepdims=True)
     norm = np.linalg.norm(sc, axis=1)
     unit = sc / norm[:, None]
@@ -1826,26 +1968,24 @@ def _full_field(problem, state, prior, first_it, report) -> _FullField:
     inverse of its noise variance (:func:`_pixel_variances`), the
     simulation blurred by the point spread that matches the patterns best.
 
-    Every parameter is free here unless the patterns do not see it at all
-    (:data:`FULL_FIELD_HOLD`), also those the DIC stage kept at their
-    start as poorly determined: near the solution the full field's
-    standard errors hold (errors within 3 sigma on matching data), and
-    they are smaller (0.07 deg for the azimuthal angle on 100 patterns of
-    120 px, against 0.16 deg from DIC). A start kept by the significance
-    rule would carry an error its standard error does not cover
-    (measured: a tilt 0.4 deg off whose step, 0.29 +- 0.10 deg, fell
-    just short of three standard errors)."""
+    The model is what was done to the patterns (:class:`_Filters`, and
+    the map's mean pattern that static background removal divides out,
+    as a nuisance per pattern): fitted without it, processed Ni patterns
+    moved pcz by 5 standard errors. Parameters the full field determines
+    poorly follow the DIC stage's significance rule. Its result is
+    checked against the DIC stage afterwards (:func:`_adequacy`).
+    """
     names = problem.parameters
     solved, split = solved_parameters(names)
     arrays = problem.arrays
     prior_rad = _prior_per_axis(prior)
     geometry, rotations = state.geometry, state.rotations
-    psf = _point_spread(problem, arrays, geometry, rotations)
+    processing = _estimate_processing(problem, arrays, geometry, rotations)
     history = []
-    chi2_prev, weights, last, cov = np.inf, None, None, None
+    chi2_prev, weights, last, cov, held = np.inf, None, None, None, None
     for it in range(FULL_FIELD_ITERATIONS):
         residual, jg, jr, var = _intensity_system(
-            problem, arrays, geometry, rotations, solved, psf
+            problem, arrays, geometry, rotations, solved, processing
         )
         if weights is None:
             # Weights fixed at the first step, so that chi2 compares steps
@@ -1864,13 +2004,17 @@ def _full_field(problem, state, prior, first_it, report) -> _FullField:
         # standard errors over nine maps)
         cov = full.covariance
         se = np.sqrt(np.clip(np.diag(cov), 0, None))
-        # A parameter the patterns do not see at all stays where it is
-        # (measured: angles with standard errors of 600 deg on 9 real Ni
-        # patterns stepped by hundreds of degrees, which undid the PC's
-        # step too)
-        free = [
-            i for i, nm in enumerate(solved) if se[i] <= FULL_FIELD_HOLD * DETERMINACY_LIMITS[nm]
-        ]
+        if held is None:
+            # The DIC stage's rule: a parameter the patterns determine
+            # poorly leaves its value only by a significant step (measured
+            # on processed Ni maps: the tilt moved 1.3 deg away from the
+            # truth on a standard error of 0.5 deg), the PC always
+            held = {
+                nm
+                for nm, sg, d in zip(solved, se, full.delta)
+                if nm not in _PC and sg > DETERMINACY_LIMITS[nm] and abs(d) < SIGNIFICANCE * sg
+            }
+        free = [i for i, nm in enumerate(solved) if nm not in held]
         if not free:
             break
         upd = full
@@ -1899,7 +2043,8 @@ def _full_field(problem, state, prior, first_it, report) -> _FullField:
         )
         report(
             f"  iteration {first_it + it} (full field): chi2 {full.chi2:.6g}, "
-            f"point spread {psf:.2f} px"
+            f"point spread {processing.psf:.2f} px, high-pass {processing.highpass:.1f} px, "
+            f"contrast {processing.contrast:g}, ghost {processing.ghost}"
         )
         # Steps this small leave the covariance as it was
         if all(abs(delta[solved[i]]) <= FULL_FIELD_STOP * se[i] for i in free):
@@ -1910,7 +2055,7 @@ def _full_field(problem, state, prior, first_it, report) -> _FullField:
     for name, base in split.items():
         se[name] = se[base] = float("inf")
     se = {k: se[k] for k in (*names, TILT_DIFFERENCE) if k in se}
-    return _FullField(geometry, rotations, se, history)
+    return _FullField(geometry, rotations, se, history, tuple(sorted(held or ())))
 
 
 # --------------------------------------------------------------------- #
@@ -1933,11 +2078,10 @@ def _final_orientations(
     return problem.refine_orientations(state.geometry, state.rotations, binning=1)
 
 
-def _standard_errors(problem: _Problem, state: _State, prior) -> dict[str, float]:
-    """Standard errors of every refined parameter at the final state, and
-    of the determined tilt difference, from one joint solve."""
-    names = problem.parameters
-    solved, split = solved_parameters(names)
+def _dic_update(problem: _Problem, state: _State, prior) -> JointUpdate:
+    """The DIC stage's joint solve with every parameter free at *state*:
+    the step it would take from there and its standard errors."""
+    solved, _ = solved_parameters(problem.parameters)
     linear = _linearise(problem, state.geometry, state.field, solved)
     update, _ = _joint_solve(
         state.field,
@@ -1947,6 +2091,18 @@ def _standard_errors(problem: _Problem, state: _State, prior) -> dict[str, float
         _prior_per_axis(prior),
         0.0,
     )
+    return update
+
+
+def _standard_errors(
+    problem: _Problem, state: _State, prior, update: JointUpdate | None = None
+) -> dict[str, float]:
+    """Standard errors of every refined parameter at the final state, and
+    of the determined tilt difference, from one joint solve."""
+    names = problem.parameters
+    solved, split = solved_parameters(names)
+    if update is None:
+        update = _dic_update(problem, state, prior)
     se = dict(zip(solved, map(float, update.standard_errors)))
     if "tilt" in names or "sample_tilt" in names:
         base = "tilt" if "tilt" in solved else "sample_tilt"
@@ -1955,6 +2111,53 @@ def _standard_errors(problem: _Problem, state: _State, prior) -> dict[str, float
         # Only their difference is determined
         se[name] = se[base] = float("inf")
     return {k: se[k] for k in (*names, TILT_DIFFERENCE) if k in se}
+
+
+#: The full field passes its adequacy check when the step the DIC stage
+#: would take from the full field's solution is below this many of their
+#: combined standard errors for every parameter either determines.
+ADEQUACY_LIMIT = 3.0
+
+
+def _adequacy(problem: _Problem, ff: _FullField, update: JointUpdate) -> dict[str, Any]:
+    """Whether the full field's solution agrees with the DIC evidence.
+
+    A misfit every pattern shares (ghost bands, band profiles changed by
+    the processing, another simulator's master pattern) biases the full
+    field, which compares intensities, more than the DIC stage, which
+    tracks where features are; no variance over the patterns can see it.
+    The DIC stage's step from the full field's solution, *update*, can:
+    it is noise of the DIC's standard errors where both are right. Each
+    parameter that neither stage leaves undetermined enters, in units of
+    the two standard errors combined."""
+    solved, _ = solved_parameters(problem.parameters)
+    z = {}
+    for name, step, se_dic in zip(solved, update.delta, update.standard_errors):
+        key = TILT_DIFFERENCE if name in ("tilt", "sample_tilt") else name
+        se_ff = ff.standard_errors.get(key, np.inf)
+        if name in ff.held or max(se_dic, se_ff) > DETERMINACY_LIMITS[name]:
+            continue
+        z[key] = float(step / np.hypot(se_dic, se_ff))
+    worst = max(z, key=lambda k: abs(z[k]), default=None)
+    consistent = worst is None or abs(z[worst]) <= ADEQUACY_LIMIT
+    if consistent:
+        verdict = "full field consistent with the DIC stage" + (
+            f" (largest step {abs(z[worst]):.1f} combined standard errors, {worst})"
+            if worst
+            else ""
+        )
+    else:
+        verdict = (
+            f"full field inconsistent with the DIC stage ({worst} "
+            f"{abs(z[worst]):.1f} combined standard errors off): a misfit all patterns "
+            "share; the DIC stage's result is reported"
+        )
+    return {
+        "z": z,
+        "consistent": consistent,
+        "stage": "full field" if consistent else "DIC stage",
+        "verdict": verdict,
+    }
 
 
 def _build_result(
@@ -1969,6 +2172,7 @@ def _build_result(
     prior: float | None,
     solver: str,
     standard_errors: dict[str, float] | None = None,
+    adequacy: dict[str, Any] | None = None,
 ) -> GeometryRefinementResult:
     """The :class:`GeometryRefinementResult` of a loop's *outcome*, with
     the final orientations *rotations* and their NCC *scores*; the
@@ -2030,4 +2234,5 @@ def _build_result(
         field_after=field_after,
         converged=outcome.converged,
         steps=problem.steps,
+        adequacy=adequacy or {},
     )
