@@ -113,7 +113,7 @@ def run(case: str, seed: int, side: int, size: int, kikuchipy: bool) -> list[dic
                 ratio={k: se[k] / crb.sigma[k] for k in PC},
                 held=[a for a in ANGLES if a in res.undetermined
                       or (a == "tilt-sample_tilt" and "tilt" in res.undetermined)],
-                verdict=res.adequacy.get("stage", ""),
+                verdict="" if res.adequacy.get("consistent", True) else "inflated",
             )
         )  # fmt: skip
     if kikuchipy:

@@ -115,6 +115,7 @@ __all__ = [
     "calibration_points",
     "SOLVERS",
     "DETERMINACY_LIMITS",
+    "ADEQUACY_LIMIT",
 ]
 
 _JACOBIANS = ("finite-difference", "analytic")
@@ -199,12 +200,12 @@ class GeometryRefinementResult:
         *max_iterations* or by rejected steps.
     adequacy
         The check of the full-field stage against the DIC stage
-        (:func:`full_field_adequacy`): the step the DIC stage would take
+        (:data:`ADEQUACY_LIMIT`): the step the DIC stage would take
         from the full field's solution per parameter in units of their
         combined standard errors (``"z"``), whether it passed
-        (``"consistent"``), which stage's result is reported
-        (``"stage"``) and a sentence saying so (``"verdict"``). Empty
-        when no full field ran.
+        (``"consistent"``; if not, the standard errors are inflated to
+        cover the disagreement) and a sentence saying so
+        (``"verdict"``). Empty when no full field ran.
     """
 
     detector: EBSDDetector
@@ -1690,15 +1691,10 @@ def refine_geometry_dic(
             state = _State.measure(problem, ff.geometry, ff.rotations)
             adequacy = _adequacy(problem, ff, _dic_update(problem, state, orientation_prior))
             progress.write(f"  {adequacy['verdict']}")
-            if adequacy["consistent"]:
-                outcome = replace(outcome, state=state, history=outcome.history + ff.history)
-                standard_errors = ff.standard_errors
-            else:
+            if not adequacy["consistent"]:
                 warnings.warn(adequacy["verdict"], UserWarning, stacklevel=2)
-                if problem.dic_kwargs["binning"] > 1 and binning is None:
-                    problem = replace(problem, dic_kwargs={**problem.dic_kwargs, "binning": 1})
-                outcome = dic_stage(problem, progress, 0.0)
-                standard_errors = None
+            outcome = replace(outcome, state=state, history=outcome.history + ff.history)
+            standard_errors = _inflated(ff.standard_errors, adequacy)
     rotations, scores = _final_orientations(problem, outcome.state, solver, refine_kwargs)
     return _build_result(
         problem,
@@ -2148,16 +2144,25 @@ def _adequacy(problem: _Problem, ff: _FullField, update: JointUpdate) -> dict[st
         )
     else:
         verdict = (
-            f"full field inconsistent with the DIC stage ({worst} "
-            f"{abs(z[worst]):.1f} combined standard errors off): a misfit all patterns "
-            "share; the DIC stage's result is reported"
+            f"full field and DIC stage disagree ({worst} {abs(z[worst]):.1f} combined "
+            "standard errors apart): a misfit all patterns share; the full field's "
+            f"standard errors are inflated {abs(z[worst]) / ADEQUACY_LIMIT:.1f}x"
         )
-    return {
-        "z": z,
-        "consistent": consistent,
-        "stage": "full field" if consistent else "DIC stage",
-        "verdict": verdict,
-    }
+    return {"z": z, "consistent": consistent, "verdict": verdict}
+
+
+def _inflated(standard_errors: dict[str, float], adequacy: dict[str, Any]) -> dict[str, float]:
+    """The full field's standard errors scaled so that its disagreement
+    with the DIC stage is :data:`ADEQUACY_LIMIT` combined standard errors
+    (a Birge ratio). Falling back to the DIC stage instead was worse in
+    every case measured: the DIC stage, blind to the blur and the
+    processing, was itself biased where the two disagreed (pcy 3.4e-4 off
+    on processed Ni at 20,000 counts/px, where the full field was 0.3e-4
+    off)."""
+    if adequacy["consistent"]:
+        return standard_errors
+    factor = max(abs(v) for v in adequacy["z"].values()) / ADEQUACY_LIMIT
+    return {k: v * factor for k, v in standard_errors.items()}
 
 
 def _build_result(
