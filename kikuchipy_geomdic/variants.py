@@ -40,6 +40,8 @@ __all__ = [
     "DomainLabels",
     "domain_labels",
     "pseudo_symmetry_operators",
+    "variant_names",
+    "check_pseudo_symmetry",
 ]
 
 #: Materials whose pseudo-symmetry operators the package knows, for
@@ -224,7 +226,9 @@ def domain_labels(
         plain Rotation. Only its proper rotations are used (for 4mm: the
         four about c).
     parent
-        The parent orientation (one rotation). Default: chosen from the
+        The parent orientation (one rotation). Its own crystal-symmetry
+        equivalents are different frames: for BaTiO3, turning it by 90 deg
+        about c turns the labels +x into +y. Default: chosen from the
         map, as follows. A seed is the point with the most points within
         *tolerance* of it modulo the group the operators and the crystal
         symmetry generate (the mode of the map's orientation classes, on
@@ -292,28 +296,11 @@ def domain_labels(
     ops = pseudo_symmetry_operators(
         "BaTiO3" if pseudo_symmetry_ops is None else pseudo_symmetry_ops
     )
-    variants = np.concatenate([[[1.0, 0.0, 0.0, 0.0]], ops.data])  # (K + 1, 4)
-    n_var = variants.shape[0]
-    if names is None:
-        from kikuchipy_geomdic.synthetic import VARIANT_NAMES, variant_operators
-
-        batio3 = n_var == 6 and np.allclose(
-            np.abs((variants * variant_operators().data).sum(axis=1)), 1
-        )
-        names = tuple(VARIANT_NAMES) if batio3 else tuple(str(k) for k in range(n_var))
-    names = tuple(str(n) for n in names)
+    n_var = ops.size + 1
+    names = variant_names(ops) if names is None else tuple(str(n) for n in names)
     if len(names) != n_var:
         raise ValueError(f"{len(names)} names for {n_var} variants (the operators and identity)")
-    s = _proper_rotations(sym)
-    h = _qmul(s[:, None, :], variants[None, :, :])  # (m, K + 1, 4): s * ops[k]
-    _check_cosets(h, ops, sym)
-    group = _closure(h.reshape(-1, 4))
-    if group.shape[0] != h.shape[0] * h.shape[1]:
-        raise ValueError(
-            f"the {n_var - 1} operators with the crystal's {s.shape[0]} rotations do not form "
-            f"a group (they generate {group.shape[0]} rotations, not {h.shape[0] * h.shape[1]}):"
-            " give every variant's operator"
-        )
+    h, group = _variant_table(ops, sym)
 
     q = rot.data.reshape(-1, 4)
     ok = usable.ravel()
@@ -347,6 +334,87 @@ def domain_labels(
         names=names,
         chosen=chosen,
     )
+
+
+def variant_names(pseudo_symmetry_ops) -> tuple[str, ...]:
+    """Return a name per variant: the identity's, then each operator's.
+
+    Parameters
+    ----------
+    pseudo_symmetry_ops
+        Operators without the identity (anything
+        :func:`pseudo_symmetry_operators` takes).
+
+    Returns
+    -------
+    names
+        :data:`~kikuchipy_geomdic.synthetic.VARIANT_NAMES` (the c axis
+        in the parent frame) for BaTiO3's operators, else "0", "1", ...
+
+    Examples
+    --------
+    >>> from kikuchipy_geomdic.variants import variant_names
+    >>> variant_names("BaTiO3")
+    ('+z', '-z', '+x', '-x', '+y', '-y')
+    >>> variant_names([[0, 1, 0, 0]])
+    ('0', '1')
+    """
+    from kikuchipy_geomdic.synthetic import VARIANT_NAMES, variant_operators
+
+    q = pseudo_symmetry_operators(pseudo_symmetry_ops).data
+    known = variant_operators().data[1:]
+    if q.shape == known.shape and np.allclose(np.abs((q * known).sum(axis=1)), 1):
+        return tuple(VARIANT_NAMES)
+    return tuple(str(k) for k in range(len(q) + 1))
+
+
+def check_pseudo_symmetry(pseudo_symmetry_ops, symmetry) -> None:
+    """Check that operators describe distinct variants of a crystal.
+
+    Parameters
+    ----------
+    pseudo_symmetry_ops
+        Operators without the identity (anything
+        :func:`pseudo_symmetry_operators` takes).
+    symmetry
+        orix point group of the crystal (e.g. ``phase.point_group``).
+
+    Raises
+    ------
+    ValueError
+        Operators equivalent to each other or to the identity under the
+        crystal's rotations (a centrosymmetric point group cannot tell
+        BaTiO3's polarity; operators for another crystal system), or
+        operators that do not form a group with them.
+
+    Examples
+    --------
+    >>> from orix.quaternion import symmetry
+    >>> from kikuchipy_geomdic.variants import check_pseudo_symmetry
+    >>> check_pseudo_symmetry("BaTiO3", symmetry.C4v)
+    >>> check_pseudo_symmetry("BaTiO3", symmetry.Oh)
+    Traceback (most recent call last):
+    ...
+    ValueError: pseudo-symmetry operator 0 is the identity times a rotation of point group m-3m...
+    """
+    _variant_table(pseudo_symmetry_operators(pseudo_symmetry_ops), symmetry)
+
+
+def _variant_table(ops: Rotation, symmetry):
+    """``s * ops[k]`` (m, K + 1, 4) for the crystal's rotations s and the
+    operators with the identity first, and the group they form, checked."""
+    variants = np.concatenate([[[1.0, 0.0, 0.0, 0.0]], ops.data])
+    s = _proper_rotations(_need(symmetry))
+    h = _qmul(s[:, None, :], variants[None, :, :])
+    _check_cosets(h, ops, symmetry)
+    group = _closure(h.reshape(-1, 4))
+    if group.shape[0] != h.shape[0] * h.shape[1]:
+        raise ValueError(
+            f"the {ops.size} pseudo-symmetry operators with the crystal's {s.shape[0]} "
+            f"rotations do not form a group (they generate {group.shape[0]} rotations, not "
+            f"{h.shape[0] * h.shape[1]}): give every variant's operator"
+        )
+    return h, group
 
 
 def _inputs(orientations, symmetry, phase):
