@@ -485,8 +485,8 @@ def _check_cosets(h: np.ndarray, ops: Rotation, symmetry) -> None:
             what = "the identity" if j == 0 else f"operator {j - 1}"
             raise ValueError(
                 f"pseudo-symmetry operator {k - 1} is {what} times a rotation of point group "
-                f"{pg}: both give the same variant. A centrosymmetric point group (e.g. 4/mmm "
-                "for 4mm) cannot tell polarity; use the crystal's own point group"
+                f"{pg}: both give the same variant, so they are not pseudo-symmetries of this "
+                "crystal (BaTiO3's need its polar point group 4mm: 4/mmm cannot tell polarity)"
             )
 
 
