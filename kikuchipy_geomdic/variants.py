@@ -58,6 +58,8 @@ TOLERANCE = 5.0
 _MAX_GROUP = 120
 # Points per block of the label computation (bounded memory on big maps)
 _BLOCK = 65536
+# Points (evenly spread) the parent is chosen from on a larger map
+_MAX_PARENT_POINTS = 200_000
 
 
 def pseudo_symmetry_operators(spec: str | os.PathLike | Rotation | np.ndarray) -> Rotation:
@@ -232,7 +234,8 @@ def domain_labels(
         map, as follows. A seed is the point with the most points within
         *tolerance* of it modulo the group the operators and the crystal
         symmetry generate (the mode of the map's orientation classes, on
-        a subsample of at most 256 candidates against 4096 points); the
+        a subsample of at most 256 candidates against 4096 points; on a
+        map of more than 200 000 points, from that many spread evenly); the
         parent is the mean quaternion of the points within *tolerance*
         of the seed, each reduced to its equivalent nearest it, iterated
         three times (a robust mean modulo the pseudo-symmetry). Of its
@@ -573,6 +576,8 @@ def _reduced_mean(q: np.ndarray, ref: np.ndarray, group: np.ndarray, tol: float)
 
 def _choose_parent(q: np.ndarray, h: np.ndarray, group: np.ndarray, tol: float) -> np.ndarray:
     """The parent orientation of a map (see :func:`domain_labels`)."""
+    if len(q) > _MAX_PARENT_POINTS:  # evenly spread over the map
+        q = q[np.linspace(0, len(q) - 1, _MAX_PARENT_POINTS).astype(int)]
     n = len(q)
     cand = q[np.unique(np.linspace(0, n - 1, min(n, 256)).astype(int))]
     sample = q[np.unique(np.linspace(0, n - 1, min(n, 4096)).astype(int))]

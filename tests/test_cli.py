@@ -216,6 +216,7 @@ def refined(data, tmp_path_factory):
                 "--points",
                 "--out",
                 "--scheduler",
+                "--pseudo-symmetry",
             ],
         ),
         (
@@ -230,6 +231,7 @@ def refined(data, tmp_path_factory):
                 "--trust-region",
                 "--out",
                 "--scheduler",
+                "--pseudo-symmetry",
             ],
         ),
     ],
