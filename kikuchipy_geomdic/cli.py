@@ -1097,7 +1097,8 @@ def _common_parser() -> argparse.ArgumentParser:
         "array of unit quaternions (crystal frame, acting as op * rotation, identity left "
         "out). refine: each calibration point takes the variant its pattern shows; reindex: "
         "each point is refined in every variant and writes its variant, domain (the variant "
-        "in the parent crystal's frame), confidence and margin, and domains.png",
+        "in the parent crystal's frame), confidence and margin, and domains.png (with "
+        "--method kikuchipy: its pseudo_symmetry_index and the domain, no figure)",
     )
     geo = common.add_argument_group("starting geometry (default: the pattern file's metadata)")
     geo.add_argument(

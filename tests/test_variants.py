@@ -231,6 +231,15 @@ def test_reindex_labels_random_variant_starts(bto_mp):
     # Without operators, no variant and no domain
     plain = reindex(sm.signal, sm.start_xmap, sm.detector, bto_mp, 20, show_progressbar=False)
     assert "domain" not in plain.prop and "confidence" not in plain.prop
+    # Operators that are not a whole set of variants: no domain, a warning
+    mask = np.ones((8, 8), dtype=bool)
+    mask[:2, :2] = False  # refine four points only
+    with pytest.warns(UserWarning, match="No domain labels: the 1 pseudo-symmetry operators"):
+        part = reindex(
+            sm.signal, sm.start_xmap, sm.detector, bto_mp, 20, navigation_mask=mask,
+            pseudo_symmetry_ops=OPS[2:3], show_progressbar=False,
+        )  # fmt: skip
+    assert "domain" not in part.prop and "variant" in part.prop
 
 
 # --------------------------------------------------------------------- #
