@@ -13,7 +13,11 @@ Three commands, each a thin layer over the Python API:
 ``reindex``
     Refine every orientation of a map with a calibrated detector
     (:func:`~kikuchipy_geomdic.reindex.reindex`) and write an orix crystal
-    map (``.ang`` and orix h5).
+    map (``.ang`` and orix h5). With ``--pseudo-symmetry`` (``refine``
+    too) the variants of a pseudo-symmetric material are told apart, and
+    ``reindex`` writes each point's variant, its domain in the parent
+    crystal's frame (:func:`~kikuchipy_geomdic.variants.domain_labels`),
+    confidence and margin, and draws the domain map (``domains.png``).
 
 ``kikuchipy-geomdic COMMAND --help`` lists the options. Known errors (a
 missing or unreadable file, a master pattern of the wrong phase or
@@ -81,6 +85,8 @@ REFINE_OUTPUTS = (
 
 #: Files ``reindex`` writes, the summary last.
 REINDEX_OUTPUTS = ("xmap_refined.ang", "xmap_refined.h5", "reindex.json")
+#: The domain figure ``reindex --pseudo-symmetry`` writes besides them.
+DOMAIN_FIGURE = "domains.png"
 
 _UM = ("um", "µm", "μm", "micron", "microns", "micrometre", "micrometer")
 _LENGTH_TO_UM = {"nm": 1e-3, "mm": 1e3}
@@ -564,6 +570,32 @@ def _load_map(args: argparse.Namespace):
     return signal, xmap, mp, check_phase(xmap, mp, _phase_arg(args.phase))
 
 
+def _pseudo_symmetry(args: argparse.Namespace):
+    """The operators of ``--pseudo-symmetry`` (None without it)."""
+    from kikuchipy_geomdic.variants import pseudo_symmetry_operators
+
+    if args.pseudo_symmetry is None:
+        return None
+    try:
+        return pseudo_symmetry_operators(args.pseudo_symmetry)
+    except ValueError as e:
+        raise CLIError(f"--pseudo-symmetry: {_one_line(e)}") from None
+
+
+def _check_pseudo_symmetry(ops, mp) -> None:
+    """The operators must give distinct variants of the master pattern's
+    phase (with its point group)."""
+    from kikuchipy_geomdic.variants import check_pseudo_symmetry
+
+    if ops is not None:
+        try:
+            check_pseudo_symmetry(ops, mp.phase.point_group)
+        except ValueError as e:
+            raise CLIError(
+                f"--pseudo-symmetry does not fit phase {mp.phase.name!r}: {_one_line(e)}"
+            ) from None
+
+
 def _run_on_map(function, args: argparse.Namespace, inputs, **kwargs):
     """``function(signal, xmap, detector, master_pattern, energy, ...)``
     on the ``--scheduler`` cluster (if any), with kikuchipy's progress
@@ -741,7 +773,9 @@ def _refine(args: argparse.Namespace) -> int:
 
     staging = _Staging(args.out, REFINE_OUTPUTS, args.overwrite)
     say = (lambda *a: None) if args.quiet else print
+    ops = _pseudo_symmetry(args)
     signal, xmap, mp, phase_id = _load_map(args)
+    _check_pseudo_symmetry(ops, mp)
     det = start_detector(signal, args)
     _check_detector(det, signal)
 
@@ -775,6 +809,7 @@ def _refine(args: argparse.Namespace) -> int:
         max_iterations=args.max_iterations,
         phase=phase_id,
         seed=args.seed,
+        pseudo_symmetry_ops=ops,
     )
     summary = cv.summary_from_result(
         res,
@@ -783,6 +818,7 @@ def _refine(args: argparse.Namespace) -> int:
             signal,
             mp,
             phase=mp.phase.name,
+            pseudo_symmetry=args.pseudo_symmetry,
             points_requested=args.points,
             seconds=round(seconds, 3),
         ),
@@ -867,12 +903,18 @@ def _reindex(args: argparse.Namespace) -> int:
     from kikuchipy_geomdic.maps import navigation_shape
     from kikuchipy_geomdic.reindex import reindex, usable_points
 
-    staging = _Staging(args.out, REINDEX_OUTPUTS, args.overwrite)
+    ops = _pseudo_symmetry(args)
+    figure = ops is not None and args.method == "geomdic"
+    names = REINDEX_OUTPUTS[:-1] + (DOMAIN_FIGURE,) * figure + REINDEX_OUTPUTS[-1:]
+    staging = _Staging(args.out, names, args.overwrite)
     say = (lambda *a: None) if args.quiet else print
     signal, xmap, mp, phase_id = _load_map(args)
+    _check_pseudo_symmetry(ops, mp)
     det, source = _reindex_detector(args, signal)
     _check_detector(det, signal)
     kw: dict[str, Any] = {"method": args.method}
+    if ops is not None:
+        kw["pseudo_symmetry_ops"] = ops
     if args.method == "kikuchipy":
         kw["kikuchipy_method"] = args.kikuchipy_method
     elif args.method_kwargs or args.trust_region is not None:
@@ -911,19 +953,29 @@ def _reindex(args: argparse.Namespace) -> int:
         "seconds": round(seconds, 3),
         "patterns_per_second": float(refined.sum() / seconds) if seconds > 0 else None,
     }
+    if "domain" in out.prop:
+        from kikuchipy_geomdic.variants import variant_names
+
+        counts = np.bincount(out.prop["domain"][out.prop["domain"] >= 0], minlength=ops.size + 1)
+        stats["domains"] = dict(zip(variant_names(ops), counts.tolist()))
     summary = {
         "format": "kikuchipy-geomdic reindex summary",
         "format_version": 1,
         "versions": cv._versions(),
         "detector_source": source,
         "detector_reference_pc": {c: cv.export_geometry(_one_pc(det), c) for c in cv.CONVENTIONS},
-        "refine_kwargs": kw,
+        "refine_kwargs": {k: v for k, v in kw.items() if k != "pseudo_symmetry_ops"},
+        "pseudo_symmetry": None
+        if ops is None
+        else {"source": args.pseudo_symmetry, "operators": ops.data.tolist()},
         "result": stats,
         "inputs": _inputs(args, signal, mp, phase=out.phases[phase_id].name),
     }
     with staging as st:
         _write_ang(st.path("xmap_refined.ang"), out, det)
         orix_io.save(str(st.path("xmap_refined.h5")), out, overwrite=True)
+        if figure:
+            _domain_figure(out, ops, st.path(DOMAIN_FIGURE))
         cv.write_summary(summary, st.path("reindex.json"))
         st.commit()
     say(
@@ -941,17 +993,46 @@ def _reindex(args: argparse.Namespace) -> int:
             else "."
         )
     )
-    say(f"Results written to {str(staging.out)!r}: {', '.join(REINDEX_OUTPUTS)}")
+    if "domains" in stats:
+        say("Points per domain (c axis in the parent frame): " + ", ".join(
+            f"{k} {v}" for k, v in stats["domains"].items()
+        ))  # fmt: skip
+    say(f"Results written to {str(staging.out)!r}: {', '.join(staging.names)}")
     return 0
+
+
+def _domain_figure(xmap, ops, path: Path) -> None:
+    """The domain map, margin map and score histograms (the paper's Fig. 7)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from kikuchipy_geomdic.plotting import plot_variants
+    from kikuchipy_geomdic.variants import variant_names
+
+    fig = plot_variants(xmap, names=variant_names(ops))
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+#: Properties of a reindexing with --pseudo-symmetry written as extra
+#: columns of the .ang file (the orix h5 file holds every property).
+ANG_VARIANT_COLUMNS = ("variant", "domain", "confidence", "cross_variant_margin")
 
 
 def _write_ang(path: Path, xmap, detector) -> None:
     """Write an .ang file (orix) with NCC as confidence index, the input's
-    image quality if it has one, and the detector's mean PC (EDAX TSL
-    convention) in the header, where OIM Analysis looks for it."""
+    image quality if it has one, the variant properties as extra columns
+    (:data:`ANG_VARIANT_COLUMNS`, those the map has) and the detector's
+    mean PC (EDAX TSL convention) in the header, where OIM Analysis looks
+    for it."""
     from orix import io as orix_io
 
     kw = {"confidence_index_prop": "scores"}
+    extra = [k for k in ANG_VARIANT_COLUMNS if k in xmap.prop]
+    if extra:
+        kw["extra_prop"] = extra
     if "iq" in xmap.prop:
         kw["image_quality_prop"] = "iq"
     orix_io.save(str(path), xmap, overwrite=True, **kw)
@@ -1007,6 +1088,17 @@ def _common_parser() -> argparse.ArgumentParser:
         metavar="NAME",
         help="name or id of the map's phase to use, which must match the master "
         "pattern's (default: the map's only indexed phase)",
+    )
+    common.add_argument(
+        "--pseudo-symmetry",
+        metavar="OPS",
+        help="operators of the material's pseudo-symmetric variants: a name the package "
+        "knows (BaTiO3: its six c-axis variants) or an .npy or text file of an (n, 4) "
+        "array of unit quaternions (crystal frame, acting as op * rotation, identity left "
+        "out). refine: each calibration point takes the variant its pattern shows; reindex: "
+        "each point is refined in every variant and writes its variant, domain (the variant "
+        "in the parent crystal's frame), confidence and margin, and domains.png (with "
+        "--method kikuchipy: its pseudo_symmetry_index and the domain, no figure)",
     )
     geo = common.add_argument_group("starting geometry (default: the pattern file's metadata)")
     geo.add_argument(
@@ -1170,7 +1262,9 @@ def _parser() -> argparse.ArgumentParser:
             "detector (this package's Gauss-Newton solver, or kikuchipy's "
             "refine_orientation with --method kikuchipy; through dask: lazy, chunk by "
             "chunk, on a dask.distributed cluster with --scheduler). Writes to --out "
-            "xmap_refined.ang, xmap_refined.h5 (orix) and reindex.json."
+            "xmap_refined.ang, xmap_refined.h5 (orix) and reindex.json; with "
+            "--pseudo-symmetry each point's variant, domain, confidence and margin in both "
+            "maps and the domain figure domains.png."
         ),
         epilog=(
             "example: kikuchipy-geomdic reindex map.h5 --orientations map.ang "

@@ -508,29 +508,58 @@ def plot_normalised_errors(table: np.ndarray, pair: tuple[str, str], material: s
 # --------------------------------------------------------------------- #
 
 
-def plot_variants(xmap, truth: np.ndarray | None = None, names: Sequence[str] | None = None):
+#: Colours of BaTiO3's six variants (:data:`~kikuchipy_geomdic.synthetic.VARIANT_NAMES`):
+#: a dark and a light shade per c axis (red z, blue x, green y), as tutorial 03.
+VARIANT_COLOURS = ("#d62728", "#ff9896", "#1f77b4", "#aec7e8", "#2ca02c", "#98df8a")
+
+
+def plot_variants(
+    xmap,
+    truth: np.ndarray | None = None,
+    names: Sequence[str] | None = None,
+    *,
+    relative: bool = False,
+):
     """Plot a variant-sensitive reindexing as the paper's Fig. 7: the
-    variant map, the cross-variant margin map and the score histograms.
+    domain map, the cross-variant margin map and the score histograms.
 
     Parameters
     ----------
     xmap
         Crystal map from :func:`~kikuchipy_geomdic.reindex.reindex` with
         ``pseudo_symmetry_ops`` (properties ``variant``, ``confidence``,
-        ``cross_variant_margin``), 1D or 2D.
+        ``cross_variant_margin``, and ``domain``: each point's variant in
+        the parent crystal's frame,
+        :func:`~kikuchipy_geomdic.variants.domain_labels`), 1D or 2D. Not
+        modified.
     truth
         True variant index per point (synthetic maps: ``xmap.prop
-        ["variant"]`` of the truth); wrong points are then crossed out and
-        counted.
+        ["variant"]`` of the truth, in the true parent's frame); wrong
+        points are then crossed out and counted.
     names
-        Variant names by index (e.g.
-        :data:`~kikuchipy_geomdic.synthetic.VARIANT_NAMES`).
+        Variant names by index; default for the domain map
+        :data:`~kikuchipy_geomdic.synthetic.VARIANT_NAMES` (BaTiO3's c
+        axis) when there are at most six variants, else the indices.
+    relative
+        Map ``variant`` (each point's variant relative to its start, 0:
+        as given) instead of ``domain``. A map without ``domain`` is
+        always shown this way.
 
     Returns
     -------
     figure
-        Three panels: variants (one colour each), margin map, histograms
-        of the confidence index and the margin.
+        Four panels: the domain map (one colour per variant, a legend of
+        the names; flagged points, ``converged`` = 0, circled), the
+        margin map in grey levels (flagged points circled), and
+        histograms of the confidence index and of the margin per variant
+        (flagged points apart, in grey). Points not refined (``refined``
+        = 0) or not labelled (``domain`` = -1) are left blank.
+
+    Raises
+    ------
+    ValueError
+        If the map lacks the properties of a reindexing with
+        ``pseudo_symmetry_ops``, or *truth* has another size.
 
     Examples
     --------
@@ -538,50 +567,105 @@ def plot_variants(xmap, truth: np.ndarray | None = None, names: Sequence[str] | 
     >>> from orix.crystal_map import CrystalMap
     >>> from orix.quaternion import Rotation
     >>> from kikuchipy_geomdic.plotting import plot_variants
-    >>> prop = {"variant": np.array([0, 0, 2, 1]), "confidence": np.full(4, 0.8),
+    >>> prop = {"variant": np.array([3, 5, 2, 1]), "domain": np.array([0, 0, 2, 1]),
+    ...         "confidence": np.full(4, 0.8), "converged": np.array([1, 1, 1, 0]),
     ...         "cross_variant_margin": np.array([1.5, 1.6, 1.4, 0.2])}
     >>> xmap = CrystalMap(Rotation.identity(4), x=np.array([0, 1, 0, 1.0]),
     ...                   y=np.array([0, 0, 1, 1.0]), prop=prop)
     >>> fig = plot_variants(xmap, truth=np.array([0, 0, 2, 0]))
     >>> fig.axes[0].get_title()
     'variant: 3/4 right'
-
+    >>> [t.get_text() for t in fig.axes[0].get_legend().get_texts()][:3]
+    ['+z', '-z', '+x']
     """
-    from matplotlib.colors import BoundaryNorm, ListedColormap
+    from matplotlib.colors import ListedColormap
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
 
     missing = [k for k in ("variant", "confidence", "cross_variant_margin") if k not in xmap.prop]
     if missing:
         raise ValueError(
             f"The crystal map has no {', '.join(missing)}: reindex it with pseudo_symmetry_ops"
         )
+    relative = relative or "domain" not in xmap.prop
+    key = "variant" if relative else "domain"
     shape = tuple(xmap.shape) if len(xmap.shape) == 2 else (1, xmap.size)
-    variant = np.asarray(xmap.prop["variant"]).reshape(shape)
-    margin = np.asarray(xmap.prop["cross_variant_margin"]).reshape(shape)
-    conf = np.asarray(xmap.prop["confidence"]).ravel()
-    k = int(max(variant.max(), 0 if truth is None else np.max(truth))) + 1
-    cmap = ListedColormap([plt.get_cmap("tab10")(i) for i in range(k)])
-    norm = BoundaryNorm(np.arange(k + 1) - 0.5, k)
-    fig, axes = plt.subplots(1, 3, figsize=(12, 3.8), layout="constrained")
-    im = axes[0].imshow(variant, cmap=cmap, norm=norm, interpolation="nearest")
-    cb = fig.colorbar(im, ax=axes[0], ticks=np.arange(k), shrink=0.8)
-    cb.ax.set_yticklabels([names[i] if names else str(i) for i in range(k)])
-    title = "variant"
+    n = int(np.prod(shape))
+    label = np.asarray(xmap.prop[key]).astype(np.int64).ravel()
+    prop = xmap.prop
+    shown = label >= 0
+    if "refined" in prop:
+        shown &= np.asarray(prop["refined"]).ravel() != 0
+    flagged = shown & (np.asarray(prop.get("converged", np.ones(n))).ravel() == 0)
+    conf = np.asarray(prop["confidence"], dtype=float).ravel()
+    margin = np.asarray(prop["cross_variant_margin"], dtype=float).ravel()
     if truth is not None:
-        wrong = np.asarray(truth).reshape(shape) != variant
-        rows, cols = np.nonzero(wrong)
-        axes[0].plot(cols, rows, "kx", ms=5)
-        title += f": {int((~wrong).sum())}/{wrong.size} right"
-    axes[0].set_title(title)
-    im = axes[1].imshow(margin, cmap="viridis", interpolation="nearest")
-    fig.colorbar(im, ax=axes[1], shrink=0.8)
-    axes[1].set_title("cross-variant margin")
-    bins = np.linspace(min(0.0, conf.min(), margin.min()), max(conf.max(), margin.max()), 40)
-    axes[2].hist(conf, bins=bins, alpha=0.6, label="confidence index")
-    axes[2].hist(margin.ravel(), bins=bins, alpha=0.6, label="margin")
-    axes[2].set_xlabel("score")
-    axes[2].set_ylabel("points")
-    axes[2].legend(fontsize=8)
-    for a in axes[:2]:
-        a.set_xticks([])
-        a.set_yticks([])
+        truth = np.asarray(truth).ravel()
+        if truth.size != n:
+            raise ValueError(f"truth has {truth.size} points, the map {n}")
+    k = int(max(label.max(initial=0), -1 if truth is None else truth.max())) + 1
+    if names is None:
+        if not relative and k <= 6:
+            from kikuchipy_geomdic.synthetic import VARIANT_NAMES
+
+            names = VARIANT_NAMES
+        else:
+            names = [str(i) for i in range(k)]
+    names = [str(x) for x in names]
+    k = max(k, len(names))
+    names += [str(i) for i in range(len(names), k)]
+    colours = (
+        list(VARIANT_COLOURS[:k]) if k <= 6 else [plt.get_cmap("tab20")(i % 20) for i in range(k)]
+    )
+    cmap = ListedColormap(colours).with_extremes(bad="white")
+
+    fig, axes = plt.subplots(2, 2, figsize=(10, 7.2), layout="constrained")
+    ax_map, ax_margin, ax_conf, ax_hist = axes.ravel()
+    img = np.ma.masked_array(label.astype(float), ~shown).reshape(shape)
+    ax_map.imshow(img, cmap=cmap, vmin=-0.5, vmax=k - 0.5, interpolation="nearest")
+    rows, cols = np.divmod(np.arange(n), shape[1])
+    handles = [Patch(color=colours[i], label=names[i]) for i in range(k)]
+    title = "variant" + (" (relative to the start)" if relative else " (parent frame)")
+    if truth is not None:
+        wrong = shown & (truth != label)
+        ax_map.plot(cols[wrong], rows[wrong], "kx", ms=5)
+        handles.append(Line2D([], [], color="k", marker="x", ls="", label="wrong"))
+        right = int((shown & ~wrong).sum())
+        title = f"variant: {right}/{n} right"
+    for ax in (ax_map, ax_margin):
+        ax.plot(cols[flagged], rows[flagged], "o", mfc="none", mec="k", ms=7, mew=1)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    if flagged.any():
+        handles.append(Line2D([], [], color="k", marker="o", mfc="none", ls="", label="flagged"))
+    ax_map.set_title(title)
+    ax_map.legend(
+        handles=handles, loc="upper left", bbox_to_anchor=(1.02, 1), fontsize=8,
+        title="c axis" if not relative and k <= 6 else None, title_fontsize=8,
+    )  # fmt: skip
+    im = ax_margin.imshow(
+        np.ma.masked_array(margin, ~shown).reshape(shape), cmap="gray", interpolation="nearest"
+    )
+    fig.colorbar(im, ax=ax_margin, shrink=0.8)
+    ax_margin.set_title("cross-variant margin")
+
+    good = shown & ~flagged
+    for ax, values, what in ((ax_conf, conf, "confidence index"), (ax_hist, margin, "margin")):
+        v = values[shown & np.isfinite(values)]
+        lo, hi = (v.min(), v.max()) if v.size else (0.0, 1.0)
+        pad = 0.05 * (hi - lo) if hi > lo else 0.5
+        bins = np.linspace(lo - pad, hi + pad, 31)
+        for i in range(k):
+            sel = good & (label == i) & np.isfinite(values)
+            if sel.any():
+                ax.hist(values[sel], bins=bins, histtype="step", lw=1.5, color=colours[i],
+                        label=names[i])  # fmt: skip
+        sel = flagged & np.isfinite(values)
+        if sel.any():
+            ax.hist(values[sel], bins=bins, color="0.6", alpha=0.6, label="flagged")
+        ax.set_xlabel(what)
+        ax.set_ylabel("points")
+        ax.legend(fontsize=7)
+    ax_conf.set_title("confidence index per variant")
+    ax_hist.set_title("cross-variant margin per variant")
     return fig

@@ -229,10 +229,13 @@ def reindex(
           *dic_rms*, ``dic_rms`` (RMS DIC displacement in pixels); with
           *pseudo_symmetry_ops*, ``variant`` (0: as given, k: operator
           k - 1 applied), ``confidence`` (the kept variant's
-          variant-sensitive confidence index), ``cross_variant_margin``
-          and ``variant_score_k`` (NCC of each candidate);
+          variant-sensitive confidence index), ``cross_variant_margin``,
+          ``variant_score_k`` (NCC of each candidate) and ``domain``
+          (the variant in the parent crystal's frame, -1 where not
+          labelled: :func:`~kikuchipy_geomdic.variants.domain_labels`,
+          the parent chosen from the refined, converged points);
         - "kikuchipy": ``num_evals`` and, with ``pseudo_symmetry_ops``,
-          ``pseudo_symmetry_index``.
+          ``pseudo_symmetry_index`` and ``domain``.
 
         Points with unusable rotations or whose pattern holds NaN are not
         indexed (phase -1). The inputs are not modified.
@@ -301,10 +304,11 @@ def reindex(
     if method == "kikuchipy":
         if pseudo_symmetry_ops is not None:
             refine_kwargs["pseudo_symmetry_ops"] = pseudo_symmetry_ops
-        return _reindex_kikuchipy(
+        out = _reindex_kikuchipy(
             signal, xmap, detector, master_pattern, energy, todo, phase_id, mp_phase,
             show_progressbar, refine_kwargs,
         )  # fmt: skip
+        return _with_domain(out, pseudo_symmetry_ops, phase_id)
 
     flat = todo.ravel()
     q0 = xmap.rotations.data.reshape(-1, 4)
@@ -338,7 +342,25 @@ def reindex(
         prop["cross_variant_margin"] = np.where(done, out["cross_variant_margin"], 0.0)
         for k, v in enumerate(out["variant_scores"].T):
             prop[f"variant_score_{k}"] = np.where(done, v, 0.0)
-    return _merge(xmap, out["rotations"], done, bad, prop, phase_id, mp_phase)
+    merged = _merge(xmap, out["rotations"], done, bad, prop, phase_id, mp_phase)
+    return _with_domain(merged, pseudo_symmetry_ops, phase_id)
+
+
+def _with_domain(xmap: CrystalMap, ops, phase_id: int) -> CrystalMap:
+    """Add property ``domain`` (:func:`~kikuchipy_geomdic.variants.domain_labels`,
+    the parent chosen from the refined, converged points) to a fresh map."""
+    if ops is None:
+        return xmap
+    from kikuchipy_geomdic.variants import domain_labels
+
+    trusted = xmap.prop["refined"].astype(bool) & (xmap.prop.get("converged", 1) != 0)
+    try:
+        lab = domain_labels(xmap, ops, phase=phase_id, points=trusted if trusted.any() else None)
+    except ValueError as e:  # operators that do not make a group with the crystal's
+        warnings.warn(f"No domain labels: {e}", UserWarning, stacklevel=3)
+        return xmap
+    xmap.prop["domain"] = lab.label.astype(np.int64)
+    return xmap
 
 
 def _show_progressbar(show_progressbar: bool | None) -> bool:

@@ -216,6 +216,7 @@ def refined(data, tmp_path_factory):
                 "--points",
                 "--out",
                 "--scheduler",
+                "--pseudo-symmetry",
             ],
         ),
         (
@@ -230,6 +231,7 @@ def refined(data, tmp_path_factory):
                 "--trust-region",
                 "--out",
                 "--scheduler",
+                "--pseudo-symmetry",
             ],
         ),
     ],
@@ -1015,3 +1017,146 @@ def test_step_sizes_not_micrometres_warning(tmp_path, line_files, monkeypatch, c
     ]
     (ax,) = seen["signal"].axes_manager.navigation_axes
     assert (ax.scale, ax.units) == (1.0, "px")
+
+
+# --------------------------------------------------------------------- #
+# Pseudo-symmetric variants (--pseudo-symmetry)
+# --------------------------------------------------------------------- #
+
+BTO_NAV = (8, 8)
+
+
+@pytest.fixture(scope="module")
+def bto_files(tmp_path_factory, bto_mp):
+    """A BaTiO3 stripe-domain map (60 px) as kikuchipy h5ebsd, its starts
+    in random variants (what an indexer blind to the variants gives) as
+    orix h5, the true detector, and the operators as .npy and .txt."""
+    d = tmp_path_factory.mktemp("bto")
+    sm = synthetic.synthetic_map(
+        bto_mp, BTO_NAV, "stripes", shape=(60, 60), dose=300, seed=1, perturbation={}
+    )
+    ops = synthetic.variant_operators()
+    k = np.random.default_rng(0).integers(0, 6, sm.xmap.size)
+    start = CrystalMap(
+        rotations=ops[k] * sm.start_xmap.rotations,
+        x=sm.start_xmap.x,
+        y=sm.start_xmap.y,
+        phase_list=sm.start_xmap.phases,
+        scan_unit="um",
+    )
+    sm.signal.save(d / "bto.h5")
+    orix_io.save(str(d / "start.h5"), start)
+    cv.save_detector(sm.detector, d / "detector.txt")
+    np.save(d / "ops.npy", ops[1:].data)
+    np.savetxt(d / "ops.txt", ops[1:].data, header="BaTiO3 variants: a b c d")
+    return d, sm
+
+
+def _bto_argv(command, d, out, *extra):
+    return [
+        command, d / "bto.h5", "--orientations", d / "start.h5", "--master-pattern", "BaTiO3",
+        "--energy", "20", "--quiet", "--out", out, *extra,
+    ]  # fmt: skip
+
+
+def test_reindex_writes_domains(tmp_path, bto_files, capsys):
+    """reindex --pseudo-symmetry from random-variant starts: the maps
+    written hold each point's variant (relative to its start, scrambled),
+    its domain (the truth), confidence and margin; domains.png is drawn."""
+    d, sm = bto_files
+    truth = sm.xmap.prop["variant"]
+    before = digest(d)
+    out = tmp_path / "r"
+    argv = _bto_argv("reindex", d, out, "--detector", d / "detector.txt")
+    code, _, err = run([*argv, "--pseudo-symmetry", "BaTiO3"], capsys)
+    assert code == 0, err
+    names = [*cli.REINDEX_OUTPUTS[:-1], cli.DOMAIN_FIGURE, cli.REINDEX_OUTPUTS[-1]]
+    assert sorted(p.name for p in out.iterdir()) == sorted(names)
+    xmap = orix_io.load(str(out / "xmap_refined.h5"))
+    # Right points: trusted and at their true orientation (modulo 4mm)
+    from orix.quaternion import Orientation
+
+    pg = sm.xmap.phases[0].point_group
+    err_deg = Orientation(xmap.rotations, pg).angle_with(Orientation(sm.xmap.rotations, pg))
+    right = (xmap.prop["converged"] == 1) & (np.rad2deg(err_deg) < 1)
+    assert right.mean() >= 0.95
+    np.testing.assert_array_equal(xmap.prop["domain"][right], truth[right])
+    assert (xmap.prop["variant"] != truth).mean() > 0.5  # relative to random starts
+    for key in ("confidence", "cross_variant_margin"):
+        assert np.isfinite(xmap.prop[key]).all() and (xmap.prop[key][right] > 0).all()
+    # The .ang file carries the same as extra columns
+    with contextlib.redirect_stdout(io.StringIO()):
+        ang = orix_io.load(str(out / "xmap_refined.ang"))
+    for key in cli.ANG_VARIANT_COLUMNS:
+        np.testing.assert_allclose(ang.prop[key], xmap.prop[key], atol=1e-5)
+    summary = json.loads((out / "reindex.json").read_text())
+    domains = summary["result"]["domains"]
+    assert list(domains) == list(synthetic.VARIANT_NAMES)
+    assert sum(domains.values()) == truth.size and domains["+z"] == (truth == 0).sum()
+    assert summary["pseudo_symmetry"]["source"] == "BaTiO3"
+    import matplotlib.pyplot as plt
+
+    assert plt.imread(out / cli.DOMAIN_FIGURE).shape[0] > 400
+    assert digest(d) == before
+
+    # The operators from a file give the same; without them, no domain
+    for name in ("ops.npy", "ops.txt"):
+        code, _, err = run(
+            [*argv[:-2], "--out", tmp_path / name, "--pseudo-symmetry", d / name], capsys
+        )
+        assert code == 0, err
+        again = orix_io.load(str(tmp_path / name / "xmap_refined.h5"))
+        np.testing.assert_array_equal(again.prop["domain"], xmap.prop["domain"])
+    code, _, err = run([*argv[:-2], "--out", tmp_path / "plain"], capsys)
+    assert code == 0, err
+    assert sorted(p.name for p in (tmp_path / "plain").iterdir()) == sorted(cli.REINDEX_OUTPUTS)
+    assert "domain" not in orix_io.load(str(tmp_path / "plain" / "xmap_refined.h5")).prop
+
+
+def test_refine_passes_pseudo_symmetry(tmp_path, bto_files, monkeypatch, capsys):
+    d, _ = bto_files
+    seen = _stop_at_refinement(monkeypatch)
+    ops = synthetic.variant_operators()[1:]
+    for spec in ("batio3", d / "ops.txt"):
+        code, _, err = run(
+            _bto_argv("refine", d, tmp_path / "o", "--pseudo-symmetry", spec), capsys
+        )
+        assert code == 130, err
+        np.testing.assert_allclose(seen["kwargs"]["pseudo_symmetry_ops"].data, ops.data)
+    code, _, err = run(_bto_argv("refine", d, tmp_path / "o"), capsys)
+    assert code == 130 and seen["kwargs"]["pseudo_symmetry_ops"] is None
+
+
+PSEUDO_SYMMETRY_ERRORS = {
+    "unknown name": (
+        "Quartz",
+        "--pseudo-symmetry: pseudo-symmetry 'Quartz' is neither a known material (BaTiO3)",
+    ),
+    "not quaternions": ("{t}/three.txt", "must hold an (n, 4) array of quaternions"),
+    "not unit": ("{t}/long.npy", "quaternion 0 has norm 2, not 1"),
+    "identity": ("{t}/identity.npy", "operator 0 is the identity; give the operators"),
+    "unreadable": ("{t}/words.txt", "cannot read pseudo-symmetry operators from"),
+    "wrong phase": (
+        "BaTiO3",
+        "--pseudo-symmetry does not fit phase 'Si': pseudo-symmetry operator 0 is the identity",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(PSEUDO_SYMMETRY_ERRORS))
+@pytest.mark.parametrize("command", ["refine", "reindex"])
+def test_pseudo_symmetry_errors(case, command, data, tmp_path, capsys):
+    d, _ = data
+    ops = synthetic.variant_operators().data
+    np.savetxt(tmp_path / "three.txt", ops[1:, :3])
+    np.save(tmp_path / "long.npy", 2 * ops[1:])
+    np.save(tmp_path / "identity.npy", ops)
+    (tmp_path / "words.txt").write_text("one two three four\n")
+    spec, message = PSEUDO_SYMMETRY_ERRORS[case]
+    argv = [command, d / "map.h5", "--master-pattern", "Si", "--energy", "20"]
+    argv += ["--pseudo-symmetry", spec.format(t=tmp_path), "--out", tmp_path / "o"]
+    code, _, err = run(argv, capsys)
+    assert code == 2
+    (line,) = err.strip().splitlines()
+    assert line.startswith("kikuchipy-geomdic: error: ") and message in line, line
+    assert not (tmp_path / "o").exists()
