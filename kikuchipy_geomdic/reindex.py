@@ -46,6 +46,7 @@ from kikuchipy_geomdic.maps import check_signal_and_detector, check_whole_map, n
 from kikuchipy_geomdic.orientation import (
     MAX_STEP,
     MasterPatternArrays,
+    coarse_arrays,
     compare_variants,
     detector_matrix,
     detector_pcs,
@@ -568,74 +569,59 @@ def _progress(show: bool):
     return ProgressBar()
 
 
-#: A first-round candidate within this angle (deg) of its variant of the
-#: best candidate is already on equal terms; farther ones are refined again
-#: from there (:func:`_refine_points`).
-EQUAL_TERMS = 0.5
-
-
 def _refine_points(patterns, q, pcs, arrays, om, levels, max_step, dic_rms, ops) -> np.ndarray:
     """The output rows (k, width) of k patterns refined from starts *q*:
     with pseudo-symmetry *ops*, from each variant of the start too, the
     variant kept by :func:`~kikuchipy_geomdic.orientation.compare_variants`.
 
-    With *ops*, in two rounds. First every variant of the start is refined
-    coarse to fine from its own start. A start a few degrees off (a user's,
+    With *ops*, in two rounds. First every variant of the start runs the
+    coarse stages from its own start. A start a few degrees off (a user's,
     refined in the wrong variant at a wrong geometry) leaves some of them
     in a local optimum, and comparing those with one that converged would
-    choose by convergence, not by the pattern. So the best first-round
-    candidate (plain NCC: variants differ in it only in the third decimal,
-    where they are alike, but a missed basin is far below) gives every
-    variant a start of its own, ``op_j * op_b^-1 * q_b``, at the same place;
-    the candidates that did not land there are refined again from it (last
-    level only: they start within the tetragonality of their optimum), and
-    the six are compared on equal terms. Candidate j stays the start's
-    variant j (``op_j * q``)."""
+    choose by convergence, not by the pattern. So the best of them by
+    full-resolution NCC (variants differ in it only in the third decimal
+    where they are alike; a missed basin is far below) gives every
+    variant a start of its own at the same place,
+    ``op_j * op_b^-1 * q_b``, from which each runs the full-resolution
+    stage, and the six are compared on equal terms. Candidate j stays the
+    start's variant j (``op_j * q``)."""
     k = patterns.shape[0]
-    candidates = q[:, None, :]
-    if ops is not None:
-        # Crystal-frame operators act on the left (op * rotation)
-        variants = _qmul(ops[None, :, :], q[:, None, :])
-        candidates = np.concatenate([candidates, variants], axis=1)
-    m = candidates.shape[1]
-    out = np.full((k, _width(ops)), np.nan)
-    res = refine_arrays(
-        np.repeat(patterns, m, axis=0),
-        candidates.reshape(-1, 4),
-        np.repeat(pcs, m, axis=0),
-        om,
-        arrays,
-        levels,
-        max_step,
-    )
-    rq = res.rotations.data.reshape(k, m, 4).copy()
-    scores = res.scores.reshape(k, m).copy()
-    evals = res.evaluations.reshape(k, m).sum(axis=1)
-    conv = res.converged.reshape(k, m).copy()
     rows = np.arange(k)
-    if m > 1:
+    if ops is None:
+        res = refine_arrays(patterns, q, pcs, om, arrays, levels, max_step)
+        rq = res.rotations.data.copy()[:, None, :]
+        scores, conv = res.scores.copy()[:, None], res.converged.copy()[:, None]
+        evals = res.evaluations.copy()
+        kept = np.zeros(k, dtype=np.int64)
+        out = np.full((k, _width(ops)), np.nan)
+        out[:, _CONF], out[:, _MARGIN], out[:, _NCC] = res.scores, 0.0, res.scores
+    else:
+        # Crystal-frame operators act on the left (op * rotation)
         ops_all = np.concatenate([[[1.0, 0.0, 0.0, 0.0]], ops])
-        best = np.nanargmax(np.where(np.isfinite(scores), scores, -np.inf), axis=1)
-        inv = ops_all[best] * [1, -1, -1, -1]
-        base = _qmul(inv, rq[rows, best])  # the best, taken back to the start's variant
+        m = ops_all.shape[0]
+        candidates = _qmul(ops_all[None, :, :], q[:, None, :])
+        first = coarse_arrays(
+            np.repeat(patterns, m, axis=0), candidates.reshape(-1, 4), np.repeat(pcs, m, axis=0),
+            om, arrays, levels, max_step,
+        )  # fmt: skip
+        cq = first.rotations.data.reshape(k, m, 4)
+        c_ncc = first.scores.reshape(k, m)
+        best = np.argmax(np.where(np.isfinite(c_ncc), c_ncc, -np.inf), axis=1)
+        # The best, taken back to the start's variant, then each variant of it
+        base = _qmul(ops_all[best] * [1, -1, -1, -1], cq[rows, best])
         target = _qmul(ops_all[None, :, :], base[:, None, :])
-        cos = np.abs((target * rq).sum(axis=-1))
-        redo = np.argwhere(cos < np.cos(np.deg2rad(EQUAL_TERMS) / 2))
-        if redo.size:
-            i, j = redo[:, 0], redo[:, 1]
-            res2 = refine_arrays(
-                patterns[i], target[i, j], pcs[i], om, arrays, (1,), max_step
-            )  # fmt: skip
-            rq[i, j] = res2.rotations.data
-            scores[i, j] = res2.scores
-            conv[i, j] = res2.converged
-            np.add.at(evals, i, res2.evaluations)
+        res = refine_arrays(
+            np.repeat(patterns, m, axis=0), target.reshape(-1, 4), np.repeat(pcs, m, axis=0),
+            om, arrays, (1,), max_step,
+        )  # fmt: skip
+        rq = res.rotations.data.reshape(k, m, 4).copy()
+        scores = res.scores.reshape(k, m).copy()
+        conv = res.converged.reshape(k, m).copy()
+        evals = (first.evaluations + res.evaluations).reshape(k, m).sum(axis=1)
         cmp = compare_variants(patterns, rq, pcs, om, arrays)
         kept = cmp.variant
+        out = np.full((k, _width(ops)), np.nan)
         out[:, _CONF], out[:, _MARGIN], out[:, _NCC:] = cmp.confidence, cmp.margin, cmp.ncc
-    else:
-        kept = np.zeros(k, dtype=np.int64)
-        out[:, _CONF], out[:, _MARGIN], out[:, _NCC] = res.scores, 0.0, res.scores
     q_kept, s_kept, c_kept = rq[rows, kept], scores[rows, kept], conv[rows, kept]
     # A fine stage entered from a coarse result can run out of evaluations
     # dithering between the master pattern's cells (measured: 16 % of
