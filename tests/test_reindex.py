@@ -578,7 +578,7 @@ def test_user_starts_reindexed_at_true_and_tilted_detector(user_stripes, azimuth
     # detector angle error is a common rotation of about its size
     right = (label // 2 == truth // 2) & (angle < 1 + 1.5 * azimuthal_error)
     # Measured: every base point at both detectors; 90 deg points 30 of 30
-    # at the true detector, 28 of 30 at 1 deg (both wrong ones flagged).
+    # at the true detector, 28 of 30 at 1 deg.
     # The benchmark's 120 px maps reach the 99 %; 96 px patterns
     # of a 9 x 9 map do not, hence 90 % here
     for k in (0, 2):  # base (+z) and 90 deg (+x)
