@@ -38,11 +38,27 @@ solver: every variant of every point refined, the kept one chosen by
     ``--de-points`` points with :data:`DE_KWARGS`: largest PC error,
     variant accuracy, mean margin and confidence.
 
+``users``
+    Issue 25: starts as users have them (``start="indexed"``: a random
+    variant per point, 1 deg scatter, kikuchipy's ``refine_orientation`` at
+    the start geometry, ``DEFAULT_PERTURBATION``), realistic patterns
+    (``Camera(dose=...)``), 13 x 13 stripe maps of 120 px, data and
+    reindex master pattern both de-ebsd. Reindexed with the operators at
+    the true detector and at it with 1 and 2 deg of azimuthal or tilt
+    error. Per map and detector: share of base (+z), 90 deg (+x) and
+    180 deg (-z) points right (the nearest variant of the true parent is
+    the true one, and the relative orientation, common rotation removed,
+    within 1 deg), points wrong with ``converged`` = 1, points flagged,
+    time. ``--kikuchipy``: also kikuchipy's ``refine_orientation`` with
+    the operators at the true detector, for the speed ratio beside the
+    accuracy.
+
 Usage::
 
     python benchmarks/bench_variants.py picks
     python benchmarks/bench_variants.py picks --mismatch --methods geomdic --doses 30 300
     python benchmarks/bench_variants.py detectors
+    python benchmarks/bench_variants.py users --seeds 0 1 2 --doses 30 150
 """
 
 from __future__ import annotations
@@ -55,9 +71,11 @@ import time
 import warnings
 
 import numpy as np
+from orix.quaternion import Rotation
 
 from kikuchipy_geomdic import synthetic
 from kikuchipy_geomdic.comparison import pattern_wise_geometry
+from kikuchipy_geomdic.geometry import copy_detector
 from kikuchipy_geomdic.refinement import calibration_points, refine_geometry_dic
 from kikuchipy_geomdic.reindex import reindex
 
@@ -69,6 +87,7 @@ ORIENTATION_ERROR = 0.3
 #: fewer generations than SciPy's default, which would take hours
 DE_KWARGS = {"seed": 0, "maxiter": 50, "popsize": 15}
 _PC = ("pcx", "pcy", "pcz")
+DEFAULT_DOSES = [0.3, 1, 3, 10, 30, 100, 300]
 T0 = time.perf_counter()
 
 
@@ -255,13 +274,131 @@ def detectors(args) -> None:
     )
 
 
+#: Detector errors of the ``users`` experiment: (name, parameter, degrees)
+DETECTOR_ERRORS = (
+    ("true", None, 0.0),
+    ("azimuthal +1", "azimuthal", 1.0),
+    ("azimuthal +2", "azimuthal", 2.0),
+    ("tilt +1", "tilt", 1.0),
+    ("tilt +2", "tilt", 2.0),
+)
+
+
+def variant_errors(rotations: Rotation, truth) -> tuple[np.ndarray, np.ndarray]:
+    """Per point the absolute variant (the nearest, with the crystal's
+    proper symmetry, of the six variants of the point's true parent) and
+    the misorientation (deg) to that variant with the map's common rotation
+    (over the points in their true variant, within 5 deg) removed: a
+    detector angle error is a common rotation of every orientation."""
+    ops = synthetic.variant_operators()
+    sym = Rotation(truth.phases[0].point_group.proper_subgroup).flatten()
+    v = truth.prop["variant"]
+    parent = ~ops[v] * truth.rotations.flatten()
+    r = Rotation(rotations).flatten()
+    ang, closest = np.empty((r.size, 6)), []
+    for k in range(6):
+        target = ops[k] * parent
+        a = np.stack([(~target * (s * r)).angle for s in sym], axis=1)
+        ang[:, k] = np.rad2deg(a.min(axis=1))
+        closest.append((sym[np.argmin(a, axis=1)] * r).data)
+    label = ang.argmin(axis=1)
+    n = np.arange(r.size)
+    near = Rotation(np.stack(closest, axis=1)[n, label])
+    target = ops[label] * parent
+    rel = ang[n, label]
+    ok = (label == v) & (rel < 5)
+    if ok.sum() >= 3:
+        c = synthetic.common_rotation(near[ok], target[ok])
+        common = Rotation.from_axes_angles(c.axis, np.deg2rad(c.angle))
+        rel = np.rad2deg((~target * (near * ~common)).angle)
+    return label, rel
+
+
+def _start_error(sm) -> np.ndarray:
+    """Angle (deg) of each start from the nearest variant of its truth."""
+    label, _ = variant_errors(sm.start_xmap.rotations, sm.xmap)
+    ops = synthetic.variant_operators()
+    parent = ~ops[sm.xmap.prop["variant"]] * sm.xmap.rotations.flatten()
+    sym = Rotation(sm.xmap.phases[0].point_group.proper_subgroup).flatten()
+    r = sm.start_xmap.rotations.flatten()
+    target = ops[label] * parent
+    return np.rad2deg(np.stack([(~target * (s * r)).angle for s in sym], axis=1).min(axis=1))
+
+
+def users(args) -> None:
+    ops = synthetic.variant_operators()[1:]
+    rows = []
+    for dose in args.doses:
+        for seed in args.seeds:
+            t0 = time.perf_counter()
+            with _quiet():
+                sm = synthetic.synthetic_map(
+                    "BaTiO3", (args.rows, args.rows), orientations="stripes",
+                    shape=(args.size, args.size), seed=seed, camera=synthetic.Camera(dose=dose),
+                    start="indexed", orientation_error=1.0,
+                )  # fmt: skip
+            err = _start_error(sm)
+            print(
+                f"dose {dose:g} seed {seed}: built in {time.perf_counter() - t0:.0f} s; starts "
+                f"{np.median(err):.1f} deg (median) from the nearest variant, "
+                f"{np.mean(err > 8.7):.0%} beyond 8.7 deg",
+                flush=True,
+            )
+            truth = sm.xmap.prop["variant"]
+            cases = [
+                (name, p, a, "geomdic")
+                for name, p, a in DETECTOR_ERRORS
+                if args.detectors is None or name in args.detectors
+            ]
+            if args.kikuchipy:
+                cases.append(("true (kikuchipy)", None, 0.0, "kikuchipy"))
+            for name, param, angle, method in cases:
+                det = sm.detector
+                if param is not None:
+                    det = copy_detector(det, **{param: getattr(det, param) + angle})
+                out, sec = _reindex(sm, det, sm.master_pattern, ops, method=method)
+                label, rel = variant_errors(out.rotations, sm.xmap)
+                right = (label == truth) & (rel < 1)
+                conv = out.converged.astype(bool) if method == "geomdic" else np.ones_like(right)
+                acc = [right[truth == k].mean() for k in (0, 2, 1)]
+                row = (dose, seed, name, *acc, int((~right & conv).sum()), int((~conv).sum()))
+                rows.append(row + (float(np.median(rel[right])), sec))
+                print("  " + _users_line(rows[-1]), flush=True)
+    print()
+    print(
+        f"{'dose':>5s} {'seed':>4s} {'detector':<17s} {'base':>6s} {'90deg':>6s} "
+        f"{'180deg':>6s} {'wrong+conv':>10s} {'flagged':>7s} {'rel deg':>7s} {'time s':>6s}"
+    )
+    for row in rows:
+        print(_users_line(row))
+    print(
+        f"({args.rows} x {args.rows} stripe maps, {args.size} px, Camera(dose); right: "
+        "nearest variant of the true parent and within 1 deg after the common rotation; "
+        "rel deg: median relative misorientation of the right points; kikuchipy: "
+        "converged not defined, counted as 1)"
+    )
+
+
+def _users_line(row) -> str:
+    d, seed, name, a0, a2, a1, wc, fl, rel, t = row
+    return (
+        f"{d:5g} {seed:4d} {name:<17s} {a0:6.1%} {a2:6.1%} {a1:6.1%} {wc:10d} {fl:7d} "
+        f"{rel:7.3f} {t:6.1f}"
+    )
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("experiment", choices=["picks", "detectors"])
+    p.add_argument("experiment", choices=["picks", "detectors", "users"])
     p.add_argument("--rows", type=int, default=15)
     p.add_argument("--size", type=int, default=120)
-    p.add_argument("--doses", type=float, nargs="+", default=[0.3, 1, 3, 10, 30, 100, 300])
+    p.add_argument("--doses", type=float, nargs="+", default=DEFAULT_DOSES)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="users: seeds")
+    p.add_argument("--kikuchipy", action="store_true", help="users: kikuchipy's refiner too")
+    p.add_argument(
+        "--detectors", nargs="+", help="users: names of DETECTOR_ERRORS to run (default all)"
+    )
     p.add_argument("--offset", type=float, default=0.03, help="PC offset of the start")
     p.add_argument("--mismatch", action="store_true", help="picks: the ebsdsim pattern")
     p.add_argument("--methods", nargs="+", default=["geomdic", "kikuchipy"])
@@ -274,7 +411,11 @@ def main(argv=None) -> None:
     if args.experiment == "detectors" and len(args.doses) > 1:
         args.doses = [100.0]
     print(f"command: {' '.join(sys.argv)}")
-    {"picks": picks, "detectors": detectors}[args.experiment](args)
+    if args.experiment == "users" and args.doses == DEFAULT_DOSES:
+        args.doses = [30.0, 150.0]
+    if args.experiment == "users" and args.rows == 15:
+        args.rows = 13
+    {"picks": picks, "detectors": detectors, "users": users}[args.experiment](args)
 
 
 if __name__ == "__main__":

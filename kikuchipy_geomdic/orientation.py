@@ -57,6 +57,7 @@ __all__ = [
     "project_patterns",
     "refine_patterns",
     "refine_arrays",
+    "coarse_arrays",
     "project_arrays",
     "project_derivatives",
     "detector_matrix",
@@ -753,6 +754,57 @@ def refine_patterns(
     return refine_arrays(
         patterns, q, detector_pcs(detector, n), detector_matrix(detector), arrays, levels, max_step
     )
+
+
+def coarse_arrays(
+    patterns: np.ndarray,
+    quaternions: np.ndarray,
+    pcs: np.ndarray,
+    om: np.ndarray,
+    arrays: MasterPatternArrays,
+    levels: Sequence[int] | None = None,
+    max_step: float = MAX_STEP,
+) -> OrientationResult:
+    """The coarse stages of :func:`refine_arrays` alone, scored at full
+    resolution.
+
+    Each start runs the schedule without its last (full-resolution)
+    stage; the result is then the better, by full-resolution NCC, of
+    where it ended and its start (the coarse stages never make a start
+    worse). For a caller that refines several candidates per pattern and
+    runs the last stage only from where they agree.
+
+    Parameters
+    ----------
+    patterns, quaternions, pcs, om, arrays, levels, max_step
+        As :func:`refine_arrays`.
+
+    Returns
+    -------
+    result
+        :class:`OrientationResult` with the full-resolution NCC and
+        ``converged`` False (the last stage did not run).
+    """
+    patterns = np.asarray(patterns)
+    n = patterns.shape[0]
+    shape = patterns.shape[1:]
+    q0 = np.ascontiguousarray(quaternions, dtype=np.float64).reshape(n, 4)
+    pcs = np.ascontiguousarray(pcs, dtype=np.float64).reshape(n, 3)
+    om = np.ascontiguousarray(om, dtype=np.float64)
+    q = q0
+    evaluations = np.zeros(n, dtype=np.float64)
+    for b, sigma in _schedule(shape, levels)[:-1]:
+        q, _, k, _ = _stage(patterns, q, pcs, om, arrays, b, sigma, max_step)
+        evaluations += k / b**2
+    flat = np.ascontiguousarray(patterns.reshape(n, -1))
+    args = (pcs, shape[0], shape[1], om, arrays.upper, arrays.lower, float(arrays.scale))
+    ncc = _stack_ncc(flat, np.ascontiguousarray(q), *args)
+    ncc0 = _stack_ncc(flat, q0, *args)
+    evaluations += 2
+    worse = ncc0 > ncc
+    q = np.where(worse[:, None], q0, q)
+    ncc = np.where(worse, ncc0, ncc)
+    return OrientationResult(Rotation(q), ncc, evaluations, np.zeros(n, dtype=bool))
 
 
 def refine_arrays(

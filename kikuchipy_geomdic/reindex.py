@@ -46,6 +46,7 @@ from kikuchipy_geomdic.maps import check_signal_and_detector, check_whole_map, n
 from kikuchipy_geomdic.orientation import (
     MAX_STEP,
     MasterPatternArrays,
+    coarse_arrays,
     compare_variants,
     detector_matrix,
     detector_pcs,
@@ -541,7 +542,8 @@ def refine_map(
 
     reseeded = np.zeros(n, dtype=bool)
     if reseed:
-        reseeded = _reseed(d, out, todo, pcs, (rows, cols), options)
+        sym = _proper_symmetry(master_pattern)
+        reseeded = _reseed(d, out, todo, pcs, (rows, cols), options, q, sym)
     scores = out[:, _SCORE].reshape(rows, cols)
     poor = poor_points(scores, todo.reshape(rows, cols)).ravel()
     return {
@@ -592,37 +594,75 @@ def _progress(show: bool):
 def _refine_points(patterns, q, pcs, arrays, om, levels, max_step, dic_rms, ops) -> np.ndarray:
     """The output rows (k, width) of k patterns refined from starts *q*:
     with pseudo-symmetry *ops*, from each variant of the start too, the
-    variant kept by :func:`~kikuchipy_geomdic.orientation.compare_variants`."""
+    variant kept by :func:`~kikuchipy_geomdic.orientation.compare_variants`.
+
+    With *ops*, in two rounds. First every variant of the start runs the
+    coarse stages from its own start. A start a few degrees off (a user's,
+    refined in the wrong variant at a wrong geometry) leaves some of them
+    in a local optimum, and comparing those with one that converged would
+    choose by convergence, not by the pattern. So the best of them by
+    full-resolution NCC (variants differ in it only in the third decimal
+    where they are alike; a missed basin is far below) gives every
+    variant a start of its own at the same place,
+    ``op_j * op_b^-1 * q_b``, from which each runs the full-resolution
+    stage, and the six are compared on equal terms. Candidate j stays the
+    start's variant j (``op_j * q``)."""
     k = patterns.shape[0]
-    candidates = q[:, None, :]
-    if ops is not None:
+    rows = np.arange(k)
+    if ops is None:
+        res = refine_arrays(patterns, q, pcs, om, arrays, levels, max_step)
+        rq = res.rotations.data.copy()[:, None, :]
+        scores, conv = res.scores.copy()[:, None], res.converged.copy()[:, None]
+        evals = res.evaluations.copy()
+        kept = np.zeros(k, dtype=np.int64)
+        out = np.full((k, _width(ops)), np.nan)
+        out[:, _CONF], out[:, _MARGIN], out[:, _NCC] = res.scores, 0.0, res.scores
+    else:
         # Crystal-frame operators act on the left (op * rotation)
-        variants = _qmul(ops[None, :, :], q[:, None, :])
-        candidates = np.concatenate([candidates, variants], axis=1)
-    m = candidates.shape[1]
-    out = np.full((k, _width(ops)), np.nan)
-    res = refine_arrays(
-        np.repeat(patterns, m, axis=0),
-        candidates.reshape(-1, 4),
-        np.repeat(pcs, m, axis=0),
-        om,
-        arrays,
-        levels,
-        max_step,
-    )
-    rq = res.rotations.data.reshape(k, m, 4)
-    if m > 1:
+        ops_all = np.concatenate([[[1.0, 0.0, 0.0, 0.0]], ops])
+        m = ops_all.shape[0]
+        candidates = _qmul(ops_all[None, :, :], q[:, None, :])
+        first = coarse_arrays(
+            np.repeat(patterns, m, axis=0), candidates.reshape(-1, 4), np.repeat(pcs, m, axis=0),
+            om, arrays, levels, max_step,
+        )  # fmt: skip
+        cq = first.rotations.data.reshape(k, m, 4)
+        c_ncc = first.scores.reshape(k, m)
+        best = np.argmax(np.where(np.isfinite(c_ncc), c_ncc, -np.inf), axis=1)
+        # The best, taken back to the start's variant, then each variant of it
+        base = _qmul(ops_all[best] * [1, -1, -1, -1], cq[rows, best])
+        target = _qmul(ops_all[None, :, :], base[:, None, :])
+        res = refine_arrays(
+            np.repeat(patterns, m, axis=0), target.reshape(-1, 4), np.repeat(pcs, m, axis=0),
+            om, arrays, (1,), max_step,
+        )  # fmt: skip
+        rq = res.rotations.data.reshape(k, m, 4).copy()
+        scores = res.scores.reshape(k, m).copy()
+        conv = res.converged.reshape(k, m).copy()
+        evals = (first.evaluations + res.evaluations).reshape(k, m).sum(axis=1)
         cmp = compare_variants(patterns, rq, pcs, om, arrays)
         kept = cmp.variant
+        out = np.full((k, _width(ops)), np.nan)
         out[:, _CONF], out[:, _MARGIN], out[:, _NCC:] = cmp.confidence, cmp.margin, cmp.ncc
-    else:
-        kept = np.zeros(k, dtype=np.int64)
-        out[:, _CONF], out[:, _MARGIN], out[:, _NCC] = res.scores, 0.0, res.scores
-    rows = np.arange(k)
-    out[:, _Q] = rq[rows, kept]
-    out[:, _SCORE] = res.scores.reshape(k, m)[rows, kept]
-    out[:, _EVALS] = res.evaluations.reshape(k, m).sum(axis=1)
-    out[:, _CONV] = res.converged.reshape(k, m)[rows, kept]
+    q_kept, s_kept, c_kept = rq[rows, kept], scores[rows, kept], conv[rows, kept]
+    # A fine stage entered from a coarse result can run out of evaluations
+    # dithering between the master pattern's cells (measured: 16 % of
+    # candidates refined from the truth at dose 150, 4 % at full
+    # resolution alone): the kept one gets one more fine stage from where it is
+    again = np.flatnonzero(~c_kept & np.isfinite(s_kept))
+    if again.size:
+        res3 = refine_arrays(
+            patterns[again], q_kept[again], pcs[again], om, arrays, (1,), max_step
+        )
+        better = res3.scores >= s_kept[again]
+        i = again[better]
+        q_kept[i], s_kept[i] = res3.rotations.data[better], res3.scores[better]
+        c_kept[i] = res3.converged[better]
+        evals[again] += res3.evaluations
+    out[:, _Q] = q_kept
+    out[:, _SCORE] = s_kept
+    out[:, _EVALS] = evals
+    out[:, _CONV] = c_kept
     out[:, _VARIANT] = kept
     if dic_rms:
         out[:, _RMS] = _dic_rms(patterns, out[:, _Q], pcs, om, arrays)
@@ -666,24 +706,95 @@ def _dic_rms(patterns, q, pcs, om, arrays) -> np.ndarray:
         )
 
 
-def _reseed(d, out, todo, pcs, nav, options, passes: int = 2) -> np.ndarray:
+def _proper_symmetry(master_pattern) -> np.ndarray:
+    """Quaternions (S, 4) of the proper point group of the master pattern's
+    phase (the identity alone for bare arrays)."""
+    phase = getattr(master_pattern, "phase", None)
+    if phase is None:
+        return np.array([[1.0, 0.0, 0.0, 0.0]])
+    pg = phase.point_group
+    return np.asarray(Rotation(pg.proper_subgroup).flatten().data, dtype=np.float64)
+
+
+def _equivalents(ops, sym) -> np.ndarray:
+    """Quaternions (E, 4) of every ``s * op`` (s a symmetry, op the identity
+    or a pseudo-symmetry operator): what makes two orientations the same
+    candidate set."""
+    ident = np.array([[1.0, 0.0, 0.0, 0.0]])
+    ops_all = ident if ops is None else np.concatenate([ident, ops])
+    return _qmul(sym[:, None, :], ops_all[None, :, :]).reshape(-1, 4)
+
+
+def _distinct(seeds: np.ndarray, equivalents: np.ndarray, min_angle: float = 1.0) -> np.ndarray:
+    """The seeds (k, 4) whose candidate sets differ: a seed that is an
+    equivalent (symmetry times variant) of an earlier one within
+    *min_angle* degrees adds nothing, as its variants are refined anyway."""
+    cos_half = np.cos(np.deg2rad(min_angle) / 2)
+    kept: list[np.ndarray] = []
+    for q in seeds:
+        if kept:
+            eq = _qmul(equivalents, q[None, :])
+            if (np.abs(eq @ np.array(kept).T) >= cos_half).any():
+                continue
+        kept.append(q)
+    return np.array(kept).reshape(-1, 4)
+
+
+def _relabel(q, start, ops, sym) -> np.ndarray:
+    """Variant index (0: the start's, k: ``ops[k - 1]`` applied) of each
+    orientation *q* (n, 4) relative to its *start* (n, 4): the variant of
+    the start nearest to it, the crystal's symmetry allowed."""
+    ident = np.array([[1.0, 0.0, 0.0, 0.0]])
+    ops_all = np.concatenate([ident, ops])
+    targets = _qmul(ops_all[None, :, :], start[:, None, :])  # (n, K, 4)
+    eq = _qmul(sym[None, :, :], q[:, None, :])  # (n, S, 4)
+    cos = np.abs(np.einsum("nkq,nsq->nks", targets, eq)).max(axis=2)
+    return cos.argmax(axis=1)
+
+
+#: Most passes of reseeding: a point fixed in one pass seeds its poor
+#: neighbours in the next (runs of misindexed points).
+RESEED_PASSES = 4
+
+
+def _reseed(d, out, todo, pcs, nav, options, start, sym) -> np.ndarray:
     """Refine poor points again from their neighbours' orientations,
-    in place in *out*; return which points a neighbour's seed improved."""
+    in place in *out*; return which points a neighbour's seed improved.
+
+    A seed's result replaces the point's own only where it scores better
+    on the point's own pattern, so reseeding never lowers a score. Seeds
+    are the neighbours' refined orientations as they are (each refined
+    with all its variants when there are operators), never averages;
+    seeds that are symmetry or variant equivalents of one another are
+    refined once. A replaced point's ``variant`` is relabelled relative to
+    its own *start*."""
     rows, cols = nav
+    ops = options["ops"]
+    equivalents = _equivalents(ops, sym)
     reseeded = np.zeros(rows * cols, dtype=bool)
     valid = todo.reshape(nav) & np.isfinite(out[:, _SCORE]).reshape(nav)
-    for _ in range(passes):
+    tried: dict[int, list[np.ndarray]] = {}
+    for _ in range(RESEED_PASSES):
         poor = poor_points(out[:, _SCORE].reshape(nav), valid)
         if not poor.any():
             break
         q_map = out[:, _Q].reshape(rows, cols, 4)
-        points = np.argwhere(poor)
-        seeds = [neighbour_seeds(q_map, tuple(p), valid & ~poor) for p in points]
-        keep = [i for i, s in enumerate(seeds) if len(s)]
-        if not keep:
+        points, seeds = [], []
+        for p in np.argwhere(poor):
+            f = int(p[0] * cols + p[1])
+            s = _distinct(neighbour_seeds(q_map, tuple(p), valid & ~poor), equivalents)
+            # A seed refined in an earlier pass gives the same result again
+            done = tried.setdefault(f, [])
+            if done and len(s):
+                old = np.concatenate(done)
+                s = np.array([q for q in s if not _seen(q, old, equivalents)]).reshape(-1, 4)
+            if len(s):
+                points.append(p)
+                seeds.append(s)
+                done.append(s)
+        if not points:
             break
-        points = points[keep]
-        seeds = [seeds[i] for i in keep]
+        points = np.array(points)
         patterns = np.asarray(d.vindex[points[:, 0], points[:, 1]].compute())
         counts = [len(s) for s in seeds]
         idx = np.repeat(np.arange(len(points)), counts)
@@ -696,11 +807,18 @@ def _reseed(d, out, todo, pcs, nav, options, passes: int = 2) -> np.ndarray:
             spent = out[f, _EVALS] + mine[:, _EVALS].sum()
             if best[_SCORE] > out[f, _SCORE]:
                 out[f] = best
+                if ops is not None:
+                    out[f, _VARIANT] = _relabel(best[None, _Q], start[None, f], ops, sym)[0]
                 reseeded[f] = changed = True
             out[f, _EVALS] = spent
         if not changed:
             break
     return reseeded
+
+
+def _seen(q, old, equivalents, min_angle: float = 1.0) -> bool:
+    cos_half = np.cos(np.deg2rad(min_angle) / 2)
+    return bool((np.abs(_qmul(equivalents, q[None, :]) @ old.T) >= cos_half).any())
 
 
 def refine_orientations(

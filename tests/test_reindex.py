@@ -512,3 +512,97 @@ def test_calibrate_then_reindex_stripe_domains(bto_mp):
     )  # fmt: skip
     for k in (0, 2):  # base and 90 deg domains
         assert np.mean(out.variant[truth == k] == k) >= 0.99, k
+
+
+# --------------------------------------------------------------------- #
+# Starts as users have them (issue 25)
+# --------------------------------------------------------------------- #
+
+
+@pytest.fixture(scope="module")
+def user_stripes(bto_mp):
+    """A 9 x 9 stripe-domain map of 96 px recorded by a camera (dose 150)
+    and started as a user has it: each point in a random variant, 1 deg
+    scatter, refined by kikuchipy at the start geometry (2 % off)."""
+    return synthetic.synthetic_map(
+        bto_mp, (9, 9), orientations="stripes", shape=(96, 96), seed=3, start="indexed",
+        orientation_error=1.0, camera=synthetic.Camera(dose=150),
+    )  # fmt: skip
+
+
+def _absolute_variant(rotations: Rotation, truth: CrystalMap) -> tuple[np.ndarray, np.ndarray]:
+    """The nearest variant (with the crystal's symmetry) of each point's
+    true parent, and the angle (deg) to it."""
+    ops = synthetic.variant_operators()
+    sym = Rotation(truth.phases[0].point_group.proper_subgroup).flatten()
+    parent = ~ops[truth.prop["variant"]] * truth.rotations.flatten()
+    r = Rotation(rotations).flatten()
+    ang = np.stack(
+        [
+            np.rad2deg(np.stack([(~(op * parent) * (s * r)).angle for s in sym]).min(axis=0))
+            for op in ops
+        ],
+        axis=1,
+    )
+    label = ang.argmin(axis=1)
+    return label, ang[np.arange(r.size), label]
+
+
+@pytest.mark.parametrize("azimuthal_error", [0.0, 1.0])
+def test_user_starts_reindexed_at_true_and_tilted_detector(user_stripes, azimuthal_error):
+    """From starts in random variants, a few degrees off, at the true
+    detector and with its azimuthal angle 1 deg off (only a common rotation
+    for a single pattern): base and 90 deg points get their c axis, the
+    same at both detectors, and at most one point is wrong with
+    converged = 1. The polarity (+x against -x, +z against -z) is not
+    asserted: on 96 px patterns after static background removal it is near
+    a coin toss (measured on this map: 10 of 29 90 deg points -x, 2 of 36
+    base points -z); ``bench_variants.py users`` measures it at 120 px.
+    Before this change 69 % of a 13 x 13 map of 120 px was right at the
+    true detector and 12 % at 1 deg."""
+    from kikuchipy_geomdic.geometry import copy_detector
+
+    sm = user_stripes
+    truth = sm.xmap.prop["variant"]
+    start_label, start_angle = _absolute_variant(sm.start_xmap.rotations, sm.xmap)
+    # The start is a user's: mostly in another variant, some far off
+    assert np.mean(start_label != truth) > 0.5 and np.percentile(start_angle, 90) > 3
+    det = copy_detector(sm.detector, azimuthal=sm.detector.azimuthal + azimuthal_error)
+    ops = synthetic.variant_operators()[1:]
+    out = reindex(
+        sm.signal, sm.start_xmap, det, sm.master_pattern, sm.energy, pseudo_symmetry_ops=ops,
+        show_progressbar=False,
+    )  # fmt: skip
+    label, angle = _absolute_variant(out.rotations, sm.xmap)
+    # VARIANT_NAMES pairs +-z, +-x, +-y: the c axis is the index // 2. A
+    # detector angle error is a common rotation of about its size
+    right = (label // 2 == truth // 2) & (angle < 1 + 1.5 * azimuthal_error)
+    # Measured: every base point at both detectors; 90 deg points 30 of 30
+    # at the true detector, 28 of 30 at 1 deg.
+    # The benchmark's 120 px maps reach the issue's 99 %; 96 px patterns
+    # of a 9 x 9 map do not, hence 90 % here
+    for k in (0, 2):  # base (+z) and 90 deg (+x)
+        assert right[truth == k].mean() >= 0.9, (k, np.flatnonzero(~right & (truth == k)))
+    assert (~right & out.converged.astype(bool)).sum() <= 1
+    # The variant is counted from each point's own start, also where a
+    # neighbour's seed gave the result
+    ops_all = synthetic.variant_operators()
+    from_start, _ = _absolute_variant(ops_all[out.variant] * sm.start_xmap.rotations, sm.xmap)
+    near = start_angle < 5
+    np.testing.assert_array_equal(from_start[near], label[near])
+
+
+def test_reseeding_never_lowers_a_score(user_stripes):
+    """A neighbour's seed replaces a point's own result only where it
+    scores better on the point's own pattern."""
+    sm = user_stripes
+    ops = synthetic.variant_operators()[1:]
+    kw = dict(pseudo_symmetry_ops=ops, show_progressbar=False)
+    args = (sm.signal, sm.start_xmap, sm.detector, sm.master_pattern, sm.energy)
+    local = reindex(*args, reseed=False, **kw)
+    seeded = reindex(*args, **kw)
+    assert seeded.reseeded.sum() >= 5  # the seeds did something: the test can fail
+    assert (seeded.scores >= local.scores).all()
+    changed = seeded.reseeded.astype(bool)
+    assert (seeded.scores[changed] > local.scores[changed]).all()
+    np.testing.assert_array_equal(seeded.variant[~changed], local.variant[~changed])
