@@ -1070,6 +1070,9 @@ class Camera:
                 mean = mean.compute()
             static_bg = np.round(mean).astype(signal.data.dtype)
             signal.remove_static_background("divide", static_bg=static_bg, show_progressbar=False)
+            # Kept with the map, as kikuchipy's readers keep the one a
+            # microscope records
+            signal.static_background = static_bg
         if self.dynamic:
             signal.remove_dynamic_background("divide", show_progressbar=False)
 
