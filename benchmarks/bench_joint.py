@@ -5,6 +5,9 @@ Usage::
 
     python benchmarks/bench_joint.py            # 10 x 10 Si map, 120 x 120 px, N = 100
     python benchmarks/bench_joint.py --quick    # 4 x 4 map, 60 x 60 px, DE on 2 points
+    # realistic patterns (synthetic.Camera, 150 counts/px), indexed start
+    python benchmarks/bench_joint.py --starts indexed --camera 150 \
+        --out benchmarks/results/realistic
     # noise study: real-Ni noise, against Nelder-Mead and the oracle, one seed
     python benchmarks/bench_joint.py --starts indexed --dose 10 --methods dic nelder-mead \
         --oracle --seed 0 --suffix _dose10_seed0
@@ -251,6 +254,10 @@ def run_start(name, args, mp, side, out_dir, suffix):
     kw = dict(STARTS[name])
     if args.dose is not None:
         kw["dose"] = args.dose or None
+    if args.camera is not None:
+        # Realistic patterns: recorded by a camera, processed by the user
+        kw.pop("dose", None)
+        kw["camera"] = synthetic.Camera(dose=args.camera)
     t0 = time.perf_counter()
     sm = synthetic.synthetic_map(
         mp,
@@ -391,6 +398,13 @@ def main(argv=None) -> int:
         type=float,
         default=None,
         help="shot noise (counts/px) of every start instead of its own; 0: none",
+    )
+    ap.add_argument(
+        "--camera",
+        type=float,
+        default=None,
+        help="counts/px of a synthetic.Camera (realistic patterns: background lobe, "
+        "blur, shot noise, static and dynamic background removal) instead of --dose",
     )
     ap.add_argument(
         "--oracle",
