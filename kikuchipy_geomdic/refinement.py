@@ -1576,21 +1576,23 @@ def refine_geometry_dic(
         Seed of the DIC noise.
     full_field
         After the DIC stage, refine the geometry and orientations once
-        more by Gauss-Newton on the pixel intensities (each pattern's
-        gain and offset solved, rotations eliminated by the same Schur
-        complement, the detector's point spread estimated, every pixel
-        used where DIC uses a few hundred features); the standard errors
-        are then the full-field ones (the residual taken as the noise,
-        cluster-robust over the patterns). Default: True for the joint
-        solver, False for the paper's. The DIC stage then ends once the
-        RMS displacement is below :data:`FULL_FIELD_BASIN`. The full field
-        reaches the Cramer-Rao bound where the master pattern describes
-        the data; with another simulator's master pattern it was more
-        accurate than DIC alone but its standard errors no longer cover
-        every error: then pass False (see the docs). By default it is
-        skipped, with a warning, when the DIC stage leaves a PC parameter
-        undetermined (standard error above :data:`DETERMINACY_LIMITS`):
-        the full field needs a start in its basin; True runs it anyway.
+        more by Gauss-Newton on the pixel intensities, every pixel used
+        where DIC uses a few hundred features, with a model of what the
+        camera and the user did to the patterns (background lobe from the
+        signal's ``static_background``, point spread, static and dynamic
+        background removal, chosen from the patterns); rotations
+        eliminated by the same Schur complement; standard errors
+        cluster-robust over the patterns, checked against the DIC stage
+        (:attr:`GeometryRefinementResult.adequacy`: raised, with a
+        warning, where the two disagree by more than
+        :data:`ADEQUACY_LIMIT` combined standard errors). Default: True
+        for the joint solver, False for the paper's. The DIC stage then
+        ends once the RMS displacement is below :data:`FULL_FIELD_BASIN`.
+        By default it is skipped, with a warning, when the DIC stage
+        leaves a PC parameter undetermined (standard error above
+        :data:`DETERMINACY_LIMITS`): the full field needs a start in its
+        basin; True runs it anyway. False: the DIC stage alone, for
+        patterns the model does not describe (see the method page).
     show_progressbar
         Whether to show a progress bar over the iterations (tqdm, on
         stderr) and print a header and one line per trial step (stdout).
@@ -2054,10 +2056,12 @@ def _full_field(problem, state, prior, first_it, report) -> _FullField:
         if nm not in _PC and sg > DETERMINACY_LIMITS[nm] and abs(d) < SIGNIFICANCE * sg
     )
     if held:
-        back = _expand({nm: -float(d) for nm, d in zip(solved, moved) if nm in held}, split)
+        # Again from the DIC stage's state: the orientations absorbed the
+        # moves of the parameters now held (put back alone, two steps left
+        # the PC 1e-3 off)
         geometry, rotations, cov = _gauss_newton(
             problem,
-            _State(geometry.updated(back), rotations, None, None),
+            state,
             solved,
             split,
             held,
@@ -2066,9 +2070,7 @@ def _full_field(problem, state, prior, first_it, report) -> _FullField:
             first_it + len(history),
             history,
             report,
-            # From a converged state, one step with the angles held back
-            # is the linear answer; the second confirms it
-            2,
+            FULL_FIELD_ITERATIONS,
         )
     se = dict(zip(solved, map(float, np.sqrt(np.clip(np.diag(cov), 0, None)))))
     if "tilt" in names or "sample_tilt" in names:
