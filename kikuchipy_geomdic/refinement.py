@@ -2023,7 +2023,7 @@ def _full_field(problem, state, prior, first_it, report) -> _FullField:
     Parameters the full field determines poorly (standard error above
     :data:`DETERMINACY_LIMITS`) follow the DIC stage's rule: they keep
     their value unless the full field moved them by :data:`SIGNIFICANCE`
-    standard errors or more, then the rest converges with them held
+    standard errors or more; if not, they are put back (:func:`_hold`)
     (measured on processed Ni maps: free, the tilt moved 1.3 deg away from
     the truth on a standard error of 0.5 deg). The move is judged after
     convergence: a first step fell short of three standard errors where
