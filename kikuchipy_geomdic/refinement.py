@@ -1964,18 +1964,23 @@ def _project_out(a, unit):
     return out
 
 
-def _intensity_system(problem, arrays, geometry, rotations, solved, processing: _Processing):
+def _intensity_system(problem, arrays, geometry, rotations, solved, processing, jacobians=True):
     """Residuals (N, P), geometry and rotation Jacobians with each
     pattern's gain and offset eliminated, and the pixel noise variances
-    (N, P); the model made by *processing*."""
+    (N, P); the model made by *processing*. Without *jacobians*, only the
+    residuals (the Jacobians None)."""
     n = len(problem.points)
     e = problem.experimental.reshape(n, -1).astype(np.float64)
-    s0, jg, jr = intensity_jacobian(
-        geometry, problem.points, rotations, arrays, solved, INTENSITY_STEPS
-    )
-    k = jg.shape[2]
-    s0, cols = processing(s0, np.concatenate([jg, jr], axis=2))
-    jg, jr = cols[..., :k], cols[..., k:]
+    if jacobians:
+        s0, jg, jr = intensity_jacobian(
+            geometry, problem.points, rotations, arrays, solved, INTENSITY_STEPS
+        )
+        k = jg.shape[2]
+        s0, cols = processing(s0, np.concatenate([jg, jr], axis=2))
+        jg, jr = cols[..., :k], cols[..., k:]
+    else:
+        s0 = ori.project_patterns(rotations, geometry.detector(problem.points), arrays)
+        s0 = processing(s0.reshape(n, -1).astype(np.float64))[0]
     # Gain and offset of each pattern, then projected out of every column:
     # exactly their elimination (variable projection). The two basis
     # vectors, the constant and the centred model, are orthogonal: the
@@ -1990,9 +1995,12 @@ def _intensity_system(problem, arrays, geometry, rotations, solved, processing: 
         flat = np.ascontiguousarray(a.reshape(n, a.shape[1], -1))
         return _project_out(flat, unit).reshape(a.shape)
 
-    residual = -reduce(e)  # model minus data, with the fitted gain and offset
-    jg = reduce(gain[:, None, None] * jg)
-    jr = reduce(gain[:, None, None] * jr)
+    residual = -reduce(e[..., None])[..., 0]  # model minus data, fitted gain and offset
+    if jacobians:
+        jg = reduce(gain[:, None, None] * jg)
+        jr = reduce(gain[:, None, None] * jr)
+    else:
+        jg = jr = None
     return residual, jg, jr, _pixel_variances(residual, e + residual)
 
 
@@ -2127,9 +2135,14 @@ def _gauss_newton(
     free = [i for i, nm in enumerate(solved) if nm not in held]
     chi2_prev, weights, last, cov, system = np.inf, None, None, None, None
     for it in range(FULL_FIELD_ITERATIONS):
-        residual, jg, jr, var = _intensity_system(
-            problem, arrays, geometry, rotations, solved, processing
+        # The Jacobians of the first step serve every step (in the basin
+        # they hardly change; building them is most of the cost): each
+        # later step simulates the patterns only
+        residual, j_geo, j_rot, var = _intensity_system(
+            problem, arrays, geometry, rotations, solved, processing, jacobians=it == 0
         )
+        if it == 0:
+            jg, jr = j_geo, j_rot
         if weights is None:
             # Weights fixed at the first step, so that chi2 compares steps
             weights = 1 / var
