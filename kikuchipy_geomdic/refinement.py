@@ -1821,17 +1821,18 @@ class _Processing:
         # 40x slower with a transposed view)
         return tuple(np.ascontiguousarray(m) for m in (ar, br, bc.T, ac.T))
 
-    def _planes(self, a: np.ndarray) -> np.ndarray:
+    def _planes(self, a: np.ndarray, dtype=np.float64) -> np.ndarray:
         # (N, P, K) -> contiguous pattern planes (N, K, rows, columns):
         # matmul over strided ones was 100x slower
         n, k = a.shape[0], int(np.prod(a.shape[2:], dtype=int))
-        return np.ascontiguousarray(np.moveaxis(a.reshape((n,) + self.shape + (k,)), 3, 1))
+        planes = np.moveaxis(a.reshape((n,) + self.shape + (k,)), 3, 1)
+        return np.ascontiguousarray(planes, dtype=dtype)
 
     def _flat(self, planes: np.ndarray, shape) -> np.ndarray:
-        return np.ascontiguousarray(np.moveaxis(planes, 1, 3)).reshape(shape)
+        return np.ascontiguousarray(np.moveaxis(planes, 1, 3), dtype=np.float64).reshape(shape)
 
     def _lowpass(self, planes: np.ndarray) -> np.ndarray:
-        ar, br, bct, act = self._lowpass_factors
+        ar, br, bct, act = (m.astype(planes.dtype, copy=False) for m in self._lowpass_factors)
         return ar @ (br @ planes @ bct) @ act
 
     def _blur(self, planes: np.ndarray) -> np.ndarray:
@@ -1843,17 +1844,23 @@ class _Processing:
         self, s0: np.ndarray, columns: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """The model patterns (N, P) of simulated ones *s0*, and their
-        derivatives (N, P, K) from those of *s0*, *columns*."""
+        derivatives (N, P, K) from those of *s0*, *columns* (processed in
+        float32: a dozen passes over them were the full field's largest
+        cost; the patterns stay float64)."""
         n, p = s0.shape
         x = self._planes(s0[..., None])
-        d = None if columns is None else self._planes(columns)
+        d = None if columns is None else self._planes(columns, np.float32)
         axes = (2, 3)
         x = x - x.mean(axis=axes, keepdims=True)
         sd = np.sqrt((x**2).mean(axis=axes, keepdims=True))
         x = x / sd
+
+        def f32(a):
+            return np.asarray(a, dtype=np.float32)
+
         if d is not None:
             d = d - d.mean(axis=axes, keepdims=True)
-            d = (d - x * (x * d).mean(axis=axes, keepdims=True)) / sd
+            d = (d - f32(x) * (f32(x) * d).mean(axis=axes, keepdims=True)) / f32(sd)
         lobe = 1.0 if self.lobe is None else self.lobe
         c = self.contrast
         if c:
@@ -1863,19 +1870,19 @@ class _Processing:
             den = self._blur(den * np.ones((1, 1) + self.shape))
             x = self._blur(raw) / den
             if d is not None:
-                d = self._blur(c * lobe * d) / den
+                d = self._blur(f32(c * lobe) * d) / f32(den)
             if self.highpass:
                 low = self._lowpass(x)
                 x = x / low
                 if d is not None:
-                    d = (d - x * self._lowpass(d)) / low
+                    d = (d - f32(x) * self._lowpass(d)) / f32(low)
         else:
             # The faint-pattern limit of the same: the background's blur
             # divided out of the blurred modulation, the ghost subtracted
             blurred_lobe = self._blur(lobe * np.ones((1, 1) + self.shape))
             x = self._blur(lobe * x) / blurred_lobe
             if d is not None:
-                d = self._blur(lobe * d) / blurred_lobe
+                d = self._blur(f32(lobe) * d) / f32(blurred_lobe)
             if self.ghost:
                 x = x - x.mean(axis=0, keepdims=True)
             if self.highpass:
@@ -1894,6 +1901,10 @@ LOWPASS_RANK_TOLERANCE = 1e-4
 #: with the patterns; 0: none.
 HIGHPASS_GRID = (0.0, 1 / 12, 1 / 8, 1 / 6)
 
+#: Patterns (at most) on which the full field chooses its model of the
+#: processing.
+ESTIMATION_PATTERNS = 50
+
 #: Kikuchi contrasts (relative to the background) the full field tries.
 CONTRAST_GRID = (0.0, 0.05, 0.1, 0.15, 0.2, 0.3)
 
@@ -1909,10 +1920,14 @@ def _estimate_processing(problem, arrays, geometry, rotations) -> _Processing:
     a blur of 0.6 px moved pcz by 11 standard errors, band widths being
     what pcz scales), whether the map's mean was divided out, the
     contrast (:data:`CONTRAST_GRID`)."""
-    n = len(problem.points)
+    # Every k-th pattern: the choice needs the map's mean pattern (the
+    # ghost), not every pattern
+    pick = np.unique(np.linspace(0, len(problem.points) - 1, ESTIMATION_PATTERNS).astype(int))
+    n = pick.size
     shape = tuple(problem.experimental.shape[1:])
-    e = ori.standardise(problem.experimental.reshape(n, -1).astype(np.float64))
-    s0 = ori.project_patterns(rotations, geometry.detector(problem.points), arrays).reshape(n, -1)
+    e = ori.standardise(problem.experimental[pick].reshape(n, -1).astype(np.float64))
+    det = geometry.detector(problem.points[pick])
+    s0 = ori.project_patterns(rotations[pick], det, arrays).reshape(n, -1)
 
     def best(candidates):
         return max(candidates, key=lambda proc: _processed_ncc(e, s0, proc))
