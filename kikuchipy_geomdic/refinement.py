@@ -1901,10 +1901,6 @@ LOWPASS_RANK_TOLERANCE = 1e-4
 #: with the patterns; 0: none.
 HIGHPASS_GRID = (0.0, 1 / 12, 1 / 8, 1 / 6)
 
-#: Patterns (at most) on which the full field chooses its model of the
-#: processing.
-ESTIMATION_PATTERNS = 50
-
 #: Kikuchi contrasts (relative to the background) the full field tries.
 CONTRAST_GRID = (0.0, 0.05, 0.1, 0.15, 0.2, 0.3)
 
@@ -1920,14 +1916,12 @@ def _estimate_processing(problem, arrays, geometry, rotations) -> _Processing:
     a blur of 0.6 px moved pcz by 11 standard errors, band widths being
     what pcz scales), whether the map's mean was divided out, the
     contrast (:data:`CONTRAST_GRID`)."""
-    # Every k-th pattern: the choice needs the map's mean pattern (the
-    # ghost), not every pattern
-    pick = np.unique(np.linspace(0, len(problem.points) - 1, ESTIMATION_PATTERNS).astype(int))
-    n = pick.size
+    # Every pattern: on 50 of 121 the map's mean pattern (the ghost) was
+    # not found
+    n = len(problem.points)
     shape = tuple(problem.experimental.shape[1:])
-    e = ori.standardise(problem.experimental[pick].reshape(n, -1).astype(np.float64))
-    det = geometry.detector(problem.points[pick])
-    s0 = ori.project_patterns(rotations[pick], det, arrays).reshape(n, -1)
+    e = ori.standardise(problem.experimental.reshape(n, -1).astype(np.float64))
+    s0 = ori.project_patterns(rotations, geometry.detector(problem.points), arrays).reshape(n, -1)
 
     def best(candidates):
         return max(candidates, key=lambda proc: _processed_ncc(e, s0, proc))

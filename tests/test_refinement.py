@@ -102,12 +102,19 @@ def test_indexed_start_pc_and_honest_errors(indexed, indexed_result):
     got = {**start, **res.parameters}
     got["tilt-sample_tilt"] = got["tilt"] - got["sample_tilt"]
     for name, sigma in res.standard_errors.items():
-        if np.isfinite(sigma):
-            assert abs(got[name] - truth[name]) <= 3 * sigma, (
-                name,
-                got[name] - truth[name],
-                sigma,
-            )
+        if not np.isfinite(sigma):
+            continue
+        # Within 3 sigma of the truth, or held at its start and reported
+        # undetermined (here the tilt difference: its full-field move,
+        # 0.28 deg on a standard error of 0.103 deg, fell short of three)
+        held = got[name] == start[name] and (
+            (name if name != "tilt-sample_tilt" else "tilt") in res.undetermined
+        )
+        assert held or abs(got[name] - truth[name]) <= 3 * sigma, (
+            name,
+            got[name] - truth[name],
+            sigma,
+        )
     # Angles this map cannot determine are not moved by noise
     for name in ("azimuthal", "tilt-sample_tilt"):
         sigma = res.standard_errors[name]
