@@ -57,8 +57,6 @@ from kikuchipy_geomdic.orientation import (
     pyramid_levels,
     refine_arrays,
 )
-
-# Defined in kikuchipy_geomdic.phases; importable from here for existing code
 from kikuchipy_geomdic.phases import (  # noqa: F401
     check_phase,
     map_with_phase,
@@ -66,6 +64,9 @@ from kikuchipy_geomdic.phases import (  # noqa: F401
     phases_match,
     replace_phase,
 )
+
+# Defined in kikuchipy_geomdic.phases; importable from here for existing code
+from kikuchipy_geomdic.variants import _qmul
 
 __all__ = ["usable_points", "reindex", "refine_map", "refine_orientations", "quiet"]
 
@@ -566,21 +567,6 @@ def _operators(ops) -> np.ndarray:
     if q.shape[0] == 0:
         raise ValueError("pseudo_symmetry_ops is empty")
     return q
-
-
-def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton products of quaternions (..., 4) (broadcast)."""
-    a0, a1, a2, a3 = np.moveaxis(a, -1, 0)
-    b0, b1, b2, b3 = np.moveaxis(b, -1, 0)
-    return np.stack(
-        [
-            a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3,
-            a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
-            a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1,
-            a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0,
-        ],
-        axis=-1,
-    )
 
 
 def _progress(show: bool):
