@@ -1018,7 +1018,13 @@ def _domain_figure(xmap, ops, path: Path) -> None:
 
 #: Properties of a reindexing with --pseudo-symmetry written as extra
 #: columns of the .ang file (the orix h5 file holds every property).
-ANG_VARIANT_COLUMNS = ("variant", "domain", "confidence", "cross_variant_margin")
+ANG_VARIANT_COLUMNS = (
+    "variant",
+    "domain",
+    "confidence",
+    "cross_variant_margin",
+    "variant_significance",
+)
 
 
 def _write_ang(path: Path, xmap, detector) -> None:

@@ -67,7 +67,14 @@ from kikuchipy_geomdic.phases import (  # noqa: F401
     replace_phase,
 )
 
-__all__ = ["usable_points", "reindex", "refine_map", "refine_orientations", "quiet"]
+__all__ = [
+    "usable_points",
+    "reindex",
+    "refine_map",
+    "refine_orientations",
+    "quiet",
+    "VARIANT_SIGNIFICANCE",
+]
 
 
 def usable_points(xmap: CrystalMap, phase_id: int | None = None) -> np.ndarray:
@@ -128,7 +135,16 @@ CHUNK_BYTES = 16 * 2**20
 
 # Columns of the per-point output of a chunk; then one NCC per candidate
 _Q, _SCORE, _EVALS, _CONV, _RMS, _VARIANT, _CONF, _MARGIN = slice(0, 4), 4, 5, 6, 7, 8, 9, 10
-_NCC = 11
+_SIG, _NCC = 11, 12
+
+#: Smallest significance (z-score of the cross-variant margin against its
+#: standard error from the pattern's own noise,
+#: :attr:`~kikuchipy_geomdic.orientation.VariantComparison.significance`)
+#: of a variant call that :func:`reindex` trusts: below it the point gets
+#: ``converged`` = 0. Measured on 13 x 13 BaTiO3 stripe maps of 120 px
+#: (``bench_variants.py users``): at 30 counts per pixel 1 of 169 points
+#: wrong and above it (14 before), at 150 none.
+VARIANT_SIGNIFICANCE = 2.0
 
 
 def _width(ops) -> int:
@@ -148,6 +164,7 @@ def reindex(
     pseudo_symmetry_ops: Rotation | None = None,
     reseed: bool = True,
     dic_rms: bool = False,
+    min_significance: float = VARIANT_SIGNIFICANCE,
     show_progressbar: bool | None = None,
     **refine_kwargs: Any,
 ) -> CrystalMap:
@@ -190,6 +207,8 @@ def reindex(
         :func:`~kikuchipy_geomdic.orientation.compare_variants`, with a
         variant-sensitive confidence index and the cross-variant margin;
         with ``method="kikuchipy"``: kikuchipy's best NCC).
+        A variant call within the pattern's noise (significance below
+        *min_significance*) gets ``converged`` = 0.
     reseed
         ``method="geomdic"`` only: refine the points that score poorly
         for where they are (:func:`~kikuchipy_geomdic.orientation.poor_points`)
@@ -201,6 +220,15 @@ def reindex(
         second opinion beside the NCC for a user who inspects suspicious
         points; it doubles the time: measured, 12 ms per 120 px pattern
         against 6 ms for the refinement).
+    min_significance
+        ``method="geomdic"`` with *pseudo_symmetry_ops*: a point whose
+        variant call has a smaller significance (its cross-variant margin
+        over the margin's standard error from the pattern's own noise: a
+        z-score, :func:`~kikuchipy_geomdic.orientation.compare_variants`)
+        gets ``converged`` = 0: its pattern does not decide between the
+        kept variant and a rival (at low dose mostly a polarity, +z
+        against -z). Default :data:`VARIANT_SIGNIFICANCE` (2). 0 flags
+        only calls whose margin is negative, never in practice.
     show_progressbar
         Show a progress bar (dask's, or kikuchipy's summary and bar with
         ``method="kikuchipy"``). Default: HyperSpy's preference.
@@ -223,14 +251,17 @@ def reindex(
         ``scores`` (NCC; 0 where not refined), ``refined`` (1 or 0) and
 
         - "geomdic": ``converged`` (1, or 0 where the solver did not
-          converge or the point still scores poorly for where it is: do
-          not trust it), ``iterations`` (pattern projections, in
+          converge, the point still scores poorly for where it is, or,
+          with *pseudo_symmetry_ops*, its variant call is within the
+          noise: do not trust it), ``iterations`` (pattern projections, in
           full-resolution equivalents), ``reseeded`` (1 where a
           neighbour's orientation gave the kept result) and, with
           *dic_rms*, ``dic_rms`` (RMS DIC displacement in pixels); with
           *pseudo_symmetry_ops*, ``variant`` (0: as given, k: operator
           k - 1 applied), ``confidence`` (the kept variant's
           variant-sensitive confidence index), ``cross_variant_margin``,
+          ``variant_significance`` (the call's z-score; ``converged`` is 0
+          below *min_significance*),
           ``variant_score_k`` (NCC of each candidate) and ``domain``
           (the variant in the parent crystal's frame, -1 where not
           labelled: :func:`~kikuchipy_geomdic.variants.domain_labels`,
@@ -324,6 +355,7 @@ def reindex(
         reseed=reseed,
         dic_rms=dic_rms,
         show_progressbar=show_progressbar,
+        min_significance=min_significance,
         **refine_kwargs,
     )
     scores = out["scores"]
@@ -341,6 +373,7 @@ def reindex(
         prop["variant"] = np.where(done, out["variant"], 0)
         prop["confidence"] = np.where(done, out["confidence"], 0.0)
         prop["cross_variant_margin"] = np.where(done, out["cross_variant_margin"], 0.0)
+        prop["variant_significance"] = np.where(done, out["variant_significance"], 0.0)
         for k, v in enumerate(out["variant_scores"].T):
             prop[f"variant_score_{k}"] = np.where(done, v, 0.0)
     merged = _merge(xmap, out["rotations"], done, bad, prop, phase_id, mp_phase)
@@ -434,6 +467,7 @@ def refine_map(
     dic_rms: bool = False,
     show_progressbar: bool = False,
     pseudo_symmetry_ops: Rotation | None = None,
+    min_significance: float = VARIANT_SIGNIFICANCE,
     levels=None,
     max_step: float = MAX_STEP,
 ) -> dict[str, np.ndarray]:
@@ -465,6 +499,9 @@ def refine_map(
     pseudo_symmetry_ops
         Operators (crystal frame, ``op * rotation``) of the variants to
         try at every point besides its start.
+    min_significance
+        With *pseudo_symmetry_ops*: variant calls of a smaller
+        significance are not ``converged``.
     levels, max_step
         Of :func:`~kikuchipy_geomdic.orientation.refine_patterns`.
 
@@ -476,7 +513,7 @@ def refine_map(
         ``dic_rms`` (NaN without *dic_rms*), ``variant`` (0: the start's,
         k: ``pseudo_symmetry_ops[k - 1]`` applied), ``confidence``,
         ``cross_variant_margin`` and ``variant_scores`` (n, K + 1) (NCC
-        per candidate) of
+        per candidate) and ``variant_significance`` of
         :func:`~kikuchipy_geomdic.orientation.compare_variants`; points
         not to do keep their rotation with NaN scores.
 
@@ -546,16 +583,21 @@ def refine_map(
         reseeded = _reseed(d, out, todo, pcs, (rows, cols), options, q, sym)
     scores = out[:, _SCORE].reshape(rows, cols)
     poor = poor_points(scores, todo.reshape(rows, cols)).ravel()
+    converged = (out[:, _CONV] > 0) & ~poor & todo
+    if ops is not None:
+        # A variant call within the pattern's noise is not trusted
+        converged &= out[:, _SIG] >= min_significance
     return {
         "rotations": out[:, _Q],
         "scores": out[:, _SCORE],
         "iterations": out[:, _EVALS],
-        "converged": (out[:, _CONV] > 0) & ~poor & todo,
+        "converged": converged,
         "reseeded": reseeded,
         "dic_rms": out[:, _RMS],
         "variant": out[:, _VARIANT].astype(np.int64),
         "confidence": out[:, _CONF],
         "cross_variant_margin": out[:, _MARGIN],
+        "variant_significance": out[:, _SIG],
         "variant_scores": out[:, _NCC:],
     }
 
@@ -617,6 +659,7 @@ def _refine_points(patterns, q, pcs, arrays, om, levels, max_step, dic_rms, ops)
         kept = np.zeros(k, dtype=np.int64)
         out = np.full((k, _width(ops)), np.nan)
         out[:, _CONF], out[:, _MARGIN], out[:, _NCC] = res.scores, 0.0, res.scores
+        out[:, _SIG] = np.inf
     else:
         # Crystal-frame operators act on the left (op * rotation)
         ops_all = np.concatenate([[[1.0, 0.0, 0.0, 0.0]], ops])
@@ -644,6 +687,7 @@ def _refine_points(patterns, q, pcs, arrays, om, levels, max_step, dic_rms, ops)
         kept = cmp.variant
         out = np.full((k, _width(ops)), np.nan)
         out[:, _CONF], out[:, _MARGIN], out[:, _NCC:] = cmp.confidence, cmp.margin, cmp.ncc
+        out[:, _SIG] = cmp.significance
     q_kept, s_kept, c_kept = rq[rows, kept], scores[rows, kept], conv[rows, kept]
     # A fine stage entered from a coarse result can run out of evaluations
     # dithering between the master pattern's cells (measured: 16 % of
