@@ -1169,7 +1169,7 @@ class VariantComparison:
         The kept candidate's weakest pairwise margin over its standard
         error from the pattern's own noise (N,): ``min_b m_ab / se_ab``
         (see :func:`compare_variants`; ``inf`` with one candidate). Below
-        about 2 the pattern does not decide between the kept candidate
+        about 2.5 the pattern does not decide between the kept candidate
         and a rival: the call is within the noise.
     """
 

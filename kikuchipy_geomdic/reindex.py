@@ -141,10 +141,13 @@ _SIG, _NCC = 11, 12
 #: standard error from the pattern's own noise,
 #: :attr:`~kikuchipy_geomdic.orientation.VariantComparison.significance`)
 #: of a variant call that :func:`reindex` trusts: below it the point gets
-#: ``converged`` = 0. Measured on 13 x 13 BaTiO3 stripe maps of 120 px
-#: (``bench_variants.py users``): at 30 counts per pixel 1 of 169 points
-#: wrong and above it (14 before), at 150 none.
-VARIANT_SIGNIFICANCE = 2.0
+#: ``converged`` = 0. 2.5 is a false-call rate of 0.6 % per point
+#: (one-sided normal tail) where a pattern carries no information about
+#: the call: at most one such point per 13 x 13 map. At 2, calls biased by
+#: a detector angle 1 deg off passed (measured: 2 of 81 points on a 9 x 9
+#: map of 96 px; 0 at 2.5). Measured on 13 x 13 BaTiO3 stripe maps of
+#: 120 px: ``bench_variants.py users`` and ``benchmarks/README.md``.
+VARIANT_SIGNIFICANCE = 2.5
 
 
 def _width(ops) -> int:
@@ -227,7 +230,7 @@ def reindex(
         z-score, :func:`~kikuchipy_geomdic.orientation.compare_variants`)
         gets ``converged`` = 0: its pattern does not decide between the
         kept variant and a rival (at low dose mostly a polarity, +z
-        against -z). Default :data:`VARIANT_SIGNIFICANCE` (2). 0 flags
+        against -z). Default :data:`VARIANT_SIGNIFICANCE` (2.5). 0 flags
         only calls whose margin is negative, never in practice.
     show_progressbar
         Show a progress bar (dask's, or kikuchipy's summary and bar with
