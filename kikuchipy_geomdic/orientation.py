@@ -649,6 +649,11 @@ def detector_matrix(detector: EBSDDetector) -> np.ndarray:
     return np.ascontiguousarray((~detector.sample_to_detector).to_matrix().reshape(3, 3))
 
 
+#: Decimals (px) to which the coarse stages round each pattern's smoothing
+#: width before grouping patterns of equal width into one filter call
+PX_DECIMALS = 2
+
+
 def _stage(patterns, q, pcs, om, arrays, binning, sigma, max_step):
     """One stage of the schedule: every pattern binned by *binning*, both
     it and the master pattern smoothed by *sigma* degrees."""
@@ -659,9 +664,14 @@ def _stage(patterns, q, pcs, om, arrays, binning, sigma, max_step):
         # The same blur on both sides, so that the smoothed optimum is the
         # orientation's (a sharp pattern against a smoothed simulation
         # pulled it degrees away): sigma in binned pixels at the PC, where
-        # one pixel spans 1 / (pcz * rows) rad
-        px = np.deg2rad(sigma) * float(np.median(pcs[:, 2])) * shape[0] / b
-        level = ndimage.gaussian_filter(level, (0, px, px), mode="nearest")
+        # one pixel spans 1 / (pcz * rows) rad. Each pattern by its own
+        # pcz (rounded to groups), not the batch's median: a point's result
+        # must not depend on the chunk it is refined in
+        px = np.round(np.deg2rad(sigma) * pcs[:, 2] * shape[0] / b, PX_DECIMALS)
+        level = np.array(level, dtype=np.float32)
+        for w in np.unique(px):
+            i = px == w
+            level[i] = ndimage.gaussian_filter(level[i], (0, w, w), mode="nearest")
     level = np.ascontiguousarray(level.reshape(n, -1), dtype=np.float32)
     mp = arrays.smoothed(sigma)
     return _refine_stack(
