@@ -17,7 +17,8 @@ Three commands, each a thin layer over the Python API:
     too) the variants of a pseudo-symmetric material are told apart, and
     ``reindex`` writes each point's variant, its domain in the parent
     crystal's frame (:func:`~kikuchipy_geomdic.variants.domain_labels`),
-    confidence and margin, and draws the domain map (``domains.png``).
+    confidence, margin and significance (a call within the pattern's noise
+    is not ``converged``), and draws the domain map (``domains.png``).
 
 ``kikuchipy-geomdic COMMAND --help`` lists the options. Known errors (a
 missing or unreadable file, a master pattern of the wrong phase or
@@ -1023,7 +1024,13 @@ def _domain_figure(xmap, ops, path: Path) -> None:
 
 #: Properties of a reindexing with --pseudo-symmetry written as extra
 #: columns of the .ang file (the orix h5 file holds every property).
-ANG_VARIANT_COLUMNS = ("variant", "domain", "confidence", "cross_variant_margin")
+ANG_VARIANT_COLUMNS = (
+    "variant",
+    "domain",
+    "confidence",
+    "cross_variant_margin",
+    "variant_significance",
+)
 
 
 def _write_ang(path: Path, xmap, detector) -> None:
@@ -1102,7 +1109,8 @@ def _common_parser() -> argparse.ArgumentParser:
         "array of unit quaternions (crystal frame, acting as op * rotation, identity left "
         "out). refine: each calibration point takes the variant its pattern shows; reindex: "
         "each point is refined in every variant and writes its variant, domain (the variant "
-        "in the parent crystal's frame), confidence and margin, and domains.png (with "
+        "in the parent crystal's frame), confidence, margin and significance (calls within "
+        "the pattern's noise get converged 0), and domains.png (with "
         "--method kikuchipy: its pseudo_symmetry_index and the domain, no figure)",
     )
     geo = common.add_argument_group("starting geometry (default: the pattern file's metadata)")
@@ -1270,7 +1278,8 @@ def _parser() -> argparse.ArgumentParser:
             "refine_orientation with --method kikuchipy; through dask: lazy, chunk by "
             "chunk, on a dask.distributed cluster with --scheduler). Writes to --out "
             "xmap_refined.ang, xmap_refined.h5 (orix) and reindex.json; with "
-            "--pseudo-symmetry each point's variant, domain, confidence and margin in both "
+            "--pseudo-symmetry each point's variant, domain, confidence, margin and "
+            "significance in both "
             "maps and the domain figure domains.png."
         ),
         epilog=(

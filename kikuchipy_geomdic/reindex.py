@@ -57,6 +57,8 @@ from kikuchipy_geomdic.orientation import (
     pyramid_levels,
     refine_arrays,
 )
+
+# Defined in kikuchipy_geomdic.phases; importable from here for existing code
 from kikuchipy_geomdic.phases import (  # noqa: F401
     check_phase,
     map_with_phase,
@@ -64,11 +66,16 @@ from kikuchipy_geomdic.phases import (  # noqa: F401
     phases_match,
     replace_phase,
 )
-
-# Defined in kikuchipy_geomdic.phases; importable from here for existing code
 from kikuchipy_geomdic.variants import _qmul
 
-__all__ = ["usable_points", "reindex", "refine_map", "refine_orientations", "quiet"]
+__all__ = [
+    "usable_points",
+    "reindex",
+    "refine_map",
+    "refine_orientations",
+    "quiet",
+    "VARIANT_SIGNIFICANCE",
+]
 
 
 def usable_points(xmap: CrystalMap, phase_id: int | None = None) -> np.ndarray:
@@ -129,7 +136,19 @@ CHUNK_BYTES = 16 * 2**20
 
 # Columns of the per-point output of a chunk; then one NCC per candidate
 _Q, _SCORE, _EVALS, _CONV, _RMS, _VARIANT, _CONF, _MARGIN = slice(0, 4), 4, 5, 6, 7, 8, 9, 10
-_NCC = 11
+_SIG, _NCC = 11, 12
+
+#: Smallest significance (z-score of the cross-variant margin against its
+#: standard error from the pattern's own noise,
+#: :attr:`~kikuchipy_geomdic.orientation.VariantComparison.significance`)
+#: of a variant call that :func:`reindex` trusts: below it the point gets
+#: ``converged`` = 0. 2.5 is a false-call rate of 0.6 % per point
+#: (one-sided normal tail) where a pattern carries no information about
+#: the call: at most one such point per 13 x 13 map. At 2, calls biased by
+#: a detector angle 1 deg off passed (measured: 2 of 81 points on a 9 x 9
+#: map of 96 px; 0 at 2.5). Measured on 13 x 13 BaTiO3 stripe maps of
+#: 120 px: ``bench_variants.py users`` and ``benchmarks/README.md``.
+VARIANT_SIGNIFICANCE = 2.5
 
 
 def _width(ops) -> int:
@@ -149,6 +168,7 @@ def reindex(
     pseudo_symmetry_ops: Rotation | None = None,
     reseed: bool = True,
     dic_rms: bool = False,
+    min_significance: float = VARIANT_SIGNIFICANCE,
     show_progressbar: bool | None = None,
     **refine_kwargs: Any,
 ) -> CrystalMap:
@@ -191,6 +211,8 @@ def reindex(
         :func:`~kikuchipy_geomdic.orientation.compare_variants`, with a
         variant-sensitive confidence index and the cross-variant margin;
         with ``method="kikuchipy"``: kikuchipy's best NCC).
+        A variant call within the pattern's noise (significance below
+        *min_significance*) gets ``converged`` = 0.
     reseed
         ``method="geomdic"`` only: refine the points that score poorly
         for where they are (:func:`~kikuchipy_geomdic.orientation.poor_points`)
@@ -202,6 +224,15 @@ def reindex(
         second opinion beside the NCC for a user who inspects suspicious
         points; it doubles the time: measured, 12 ms per 120 px pattern
         against 6 ms for the refinement).
+    min_significance
+        ``method="geomdic"`` with *pseudo_symmetry_ops*: a point whose
+        variant call has a smaller significance (its cross-variant margin
+        over the margin's standard error from the pattern's own noise: a
+        z-score, :func:`~kikuchipy_geomdic.orientation.compare_variants`)
+        gets ``converged`` = 0: its pattern does not decide between the
+        kept variant and a rival (at low dose mostly a polarity, +z
+        against -z). Default :data:`VARIANT_SIGNIFICANCE` (2.5). 0 flags
+        only calls whose margin is negative, never in practice.
     show_progressbar
         Show a progress bar (dask's, or kikuchipy's summary and bar with
         ``method="kikuchipy"``). Default: HyperSpy's preference.
@@ -224,14 +255,21 @@ def reindex(
         ``scores`` (NCC; 0 where not refined), ``refined`` (1 or 0) and
 
         - "geomdic": ``converged`` (1, or 0 where the solver did not
-          converge or the point still scores poorly for where it is: do
-          not trust it), ``iterations`` (pattern projections, in
+          converge, the point still scores poorly for where it is, or,
+          with *pseudo_symmetry_ops*, its variant call is within the
+          noise: do not trust it), ``iterations`` (pattern projections, in
           full-resolution equivalents), ``reseeded`` (1 where a
           neighbour's orientation gave the kept result) and, with
           *dic_rms*, ``dic_rms`` (RMS DIC displacement in pixels); with
           *pseudo_symmetry_ops*, ``variant`` (0: as given, k: operator
           k - 1 applied), ``confidence`` (the kept variant's
           variant-sensitive confidence index), ``cross_variant_margin``,
+          ``variant_significance`` (the call's z-score; ``converged`` is 0
+          below *min_significance*), ``isolated_variant`` (1 where a
+          trusted point's domain is shared by none of its trusted
+          neighbours, two or more: ``converged`` set to 0; a detector
+          angle error biases a few polarity calls beyond their noise, and
+          such errors are scattered points),
           ``variant_score_k`` (NCC of each candidate) and ``domain``
           (the variant in the parent crystal's frame, -1 where not
           labelled: :func:`~kikuchipy_geomdic.variants.domain_labels`,
@@ -325,6 +363,7 @@ def reindex(
         reseed=reseed,
         dic_rms=dic_rms,
         show_progressbar=show_progressbar,
+        min_significance=min_significance,
         **refine_kwargs,
     )
     scores = out["scores"]
@@ -342,10 +381,52 @@ def reindex(
         prop["variant"] = np.where(done, out["variant"], 0)
         prop["confidence"] = np.where(done, out["confidence"], 0.0)
         prop["cross_variant_margin"] = np.where(done, out["cross_variant_margin"], 0.0)
+        prop["variant_significance"] = np.where(done, out["variant_significance"], 0.0)
         for k, v in enumerate(out["variant_scores"].T):
             prop[f"variant_score_{k}"] = np.where(done, v, 0.0)
     merged = _merge(xmap, out["rotations"], done, bad, prop, phase_id, mp_phase)
-    return _with_domain(merged, pseudo_symmetry_ops, phase_id)
+    merged = _with_domain(merged, pseudo_symmetry_ops, phase_id)
+    if pseudo_symmetry_ops is not None and "domain" in merged.prop:
+        _flag_isolated(merged)
+    return merged
+
+
+def _flag_isolated(xmap: CrystalMap) -> None:
+    """Give ``converged`` = 0 to every trusted point whose domain none of
+    its trusted neighbours (8-connected, at least two of them) shares, in
+    place, and add property ``isolated_variant`` (1 there).
+
+    A detector angle error biases polarity calls beyond their noise
+    (measured: two +z points of a 13 x 13 map at 30 counts per pixel
+    called -z with significances 3.4 and 3.6, at an azimuthal angle 1 deg
+    off); such errors are scattered points, while domains span several
+    steps. A true domain one step wide is flagged too: it is not declared
+    wrong, only not trusted."""
+    shape = xmap.shape if len(xmap.shape) == 2 else (1, xmap.size)
+    dom = np.asarray(xmap.prop["domain"]).reshape(shape)
+    conv = np.asarray(xmap.prop["converged"]).reshape(shape).astype(bool)
+    trusted = conv & (dom >= 0)
+    n_trusted = np.zeros(shape, dtype=int)
+    n_same = np.zeros(shape, dtype=int)
+    rows, cols = shape
+    pad_t = np.pad(trusted, 1)
+    pad_d = np.pad(dom, 1, constant_values=-1)
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            if dr == dc == 0:
+                continue
+            t = pad_t[1 + dr : 1 + dr + rows, 1 + dc : 1 + dc + cols]
+            d = pad_d[1 + dr : 1 + dr + rows, 1 + dc : 1 + dc + cols]
+            n_trusted += t
+            n_same += t & (d == dom)
+    isolated = (trusted & (n_trusted >= ISOLATED_NEIGHBOURS) & (n_same == 0)).ravel()
+    xmap.prop["converged"] = np.where(isolated, 0, xmap.prop["converged"]).astype(np.int8)
+    xmap.prop["isolated_variant"] = isolated.astype(np.int8)
+
+
+#: Trusted neighbours a trusted point needs, none of them in its domain,
+#: for :func:`reindex` to flag it as an isolated variant call
+ISOLATED_NEIGHBOURS = 2
 
 
 def _with_domain(xmap: CrystalMap, ops, phase_id: int) -> CrystalMap:
@@ -435,6 +516,7 @@ def refine_map(
     dic_rms: bool = False,
     show_progressbar: bool = False,
     pseudo_symmetry_ops: Rotation | None = None,
+    min_significance: float = VARIANT_SIGNIFICANCE,
     levels=None,
     max_step: float = MAX_STEP,
 ) -> dict[str, np.ndarray]:
@@ -466,6 +548,9 @@ def refine_map(
     pseudo_symmetry_ops
         Operators (crystal frame, ``op * rotation``) of the variants to
         try at every point besides its start.
+    min_significance
+        With *pseudo_symmetry_ops*: variant calls of a smaller
+        significance are not ``converged``.
     levels, max_step
         Of :func:`~kikuchipy_geomdic.orientation.refine_patterns`.
 
@@ -477,7 +562,7 @@ def refine_map(
         ``dic_rms`` (NaN without *dic_rms*), ``variant`` (0: the start's,
         k: ``pseudo_symmetry_ops[k - 1]`` applied), ``confidence``,
         ``cross_variant_margin`` and ``variant_scores`` (n, K + 1) (NCC
-        per candidate) of
+        per candidate) and ``variant_significance`` of
         :func:`~kikuchipy_geomdic.orientation.compare_variants`; points
         not to do keep their rotation with NaN scores.
 
@@ -520,9 +605,9 @@ def refine_map(
         d = data.reshape((rows, cols) + shape) if len(nav) == 1 else data
         d = d.rechunk({2: -1, 3: -1})
     else:
-        per_row = max(1, CHUNK_BYTES // (4 * shape[0] * shape[1] * cols))
         d = da.from_array(
-            np.asarray(data).reshape((rows, cols) + shape), chunks=(per_row, -1, -1, -1)
+            np.asarray(data).reshape((rows, cols) + shape),
+            chunks=_chunks(rows, cols, 4 * shape[0] * shape[1]) + (-1, -1),
         )
     chunks = d.chunks[:2]
     qd = da.from_array(q.reshape(rows, cols, 4), chunks=chunks + ((4,),))
@@ -547,18 +632,57 @@ def refine_map(
         reseeded = _reseed(d, out, todo, pcs, (rows, cols), options, q, sym)
     scores = out[:, _SCORE].reshape(rows, cols)
     poor = poor_points(scores, todo.reshape(rows, cols)).ravel()
+    converged = (out[:, _CONV] > 0) & ~poor & todo
+    if ops is not None:
+        # A variant call within the pattern's noise is not trusted
+        converged &= out[:, _SIG] >= min_significance
     return {
         "rotations": out[:, _Q],
         "scores": out[:, _SCORE],
         "iterations": out[:, _EVALS],
-        "converged": (out[:, _CONV] > 0) & ~poor & todo,
+        "converged": converged,
         "reseeded": reseeded,
         "dic_rms": out[:, _RMS],
         "variant": out[:, _VARIANT].astype(np.int64),
         "confidence": out[:, _CONF],
         "cross_variant_margin": out[:, _MARGIN],
+        "variant_significance": out[:, _SIG],
         "variant_scores": out[:, _NCC:],
     }
+
+
+def _chunks(rows: int, cols: int, pattern_bytes: int) -> tuple[int, int]:
+    """Rows and columns per chunk of a map in memory: at most
+    :data:`CHUNK_BYTES` of patterns, and at least :data:`CHUNKS_PER_THREAD`
+    chunks per thread of dask's pool where the map has the points (a map
+    that fit one chunk ran on one core: measured, 21 x 21 points of 96 px
+    took 1.6 s in one chunk and 1.3 s in four on two busy cores)."""
+    want = CHUNKS_PER_THREAD * _threads()
+    per_row = max(1, CHUNK_BYTES // (pattern_bytes * cols))
+    per_row = min(per_row, max(1, -(-rows // want)))
+    per_col = cols
+    if per_row == 1:
+        # A row is too large for one chunk, or too few rows for the threads
+        per_col = min(cols, max(1, CHUNK_BYTES // pattern_bytes))
+        if rows < want:
+            per_col = min(per_col, max(1, -(-cols // -(-want // rows))))
+    return per_row, per_col
+
+
+#: Chunks per thread of dask's pool that :func:`refine_map` makes at least
+#: of a map in memory (more than one: chunks differ in cost)
+CHUNKS_PER_THREAD = 2
+
+
+def _threads() -> int:
+    """Threads of dask's local pool (its ``num_workers`` setting, else the
+    CPU count)."""
+    import os
+
+    import dask
+
+    n = dask.config.get("num_workers", None)
+    return int(n) if n else (os.cpu_count() or 1)
 
 
 def _operators(ops) -> np.ndarray:
@@ -603,6 +727,7 @@ def _refine_points(patterns, q, pcs, arrays, om, levels, max_step, dic_rms, ops)
         kept = np.zeros(k, dtype=np.int64)
         out = np.full((k, _width(ops)), np.nan)
         out[:, _CONF], out[:, _MARGIN], out[:, _NCC] = res.scores, 0.0, res.scores
+        out[:, _SIG] = np.inf
     else:
         # Crystal-frame operators act on the left (op * rotation)
         ops_all = np.concatenate([[[1.0, 0.0, 0.0, 0.0]], ops])
@@ -630,6 +755,7 @@ def _refine_points(patterns, q, pcs, arrays, om, levels, max_step, dic_rms, ops)
         kept = cmp.variant
         out = np.full((k, _width(ops)), np.nan)
         out[:, _CONF], out[:, _MARGIN], out[:, _NCC:] = cmp.confidence, cmp.margin, cmp.ncc
+        out[:, _SIG] = cmp.significance
     q_kept, s_kept, c_kept = rq[rows, kept], scores[rows, kept], conv[rows, kept]
     # A fine stage entered from a coarse result can run out of evaluations
     # dithering between the master pattern's cells (measured: 16 % of

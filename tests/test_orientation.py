@@ -211,3 +211,32 @@ def test_compare_variants_picks_the_shown_variant_under_noise(bto_mp):
         assert c.margin[0] > 0 and 0.5 * c.ncc[0, k] < c.confidence[0] < 1.2 * c.ncc[0, k]
         partner = k ^ 1  # +z/-z, +x/-x, +y/-y
         assert abs(c.ncc[0, k] - c.ncc[0, partner]) < 0.03
+
+
+def test_variant_significance_is_a_calibrated_z_score(bto_mp):
+    """The significance of a polarity call (+z against -z) divides the
+    margin by its standard error estimated from the pattern's own
+    residual: over many noise draws of one pattern the margins scatter by
+    that standard error (white noise: within 15 %), and a pattern without
+    signal gives calls of significance within the noise."""
+    det = EBSDDetector((60, 60), pc=[0.5, 0.3, 0.6], sample_tilt=70)
+    r = Rotation.from_euler(np.deg2rad([[10, 30, 50]]))
+    ops = synthetic.variant_operators()
+    q = np.stack([(ops[k] * r).data.reshape(4) for k in (0, 1)])[None]
+    arrays = ori.master_pattern_arrays(bto_mp, 20)
+    clean = ori.standardise(ori.project_patterns(r, det, bto_mp).reshape(1, -1))
+    rng = np.random.default_rng(1)
+    n = 200
+    noisy = (0.3 * clean + rng.normal(size=(n, clean.size))).reshape(n, 60, 60)
+    pcs, om = np.tile(det.pc.reshape(-1, 3), (n, 1)), ori.detector_matrix(det)
+    c = ori.compare_variants(noisy, np.repeat(q, n, axis=0), pcs, om, arrays)
+    # With two candidates the kept one's confidence index is the margin
+    m = np.where(c.variant == 0, c.confidence, -c.confidence)  # signed: +z against -z
+    se = c.confidence / c.significance
+    assert 0.85 < m.std() / se.mean() < 1.15, (m.std(), se.mean())
+    assert abs(m.mean() - 0.3) < 3 * m.std() / np.sqrt(n)  # unbiased: the NCC scale
+    # Noise alone: |z| of the kept call is that of the larger of two
+    # mirrored normal draws, rarely beyond 3
+    pure = rng.normal(size=(n, 60, 60))
+    c0 = ori.compare_variants(pure, np.repeat(q, n, axis=0), pcs, om, arrays)
+    assert np.mean(c0.significance >= 2) < 0.1 and np.mean(c0.significance >= 3) < 0.02
