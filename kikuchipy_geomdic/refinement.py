@@ -1074,8 +1074,9 @@ class _JointCarry:
 class _JointStep:
     """The outcome of one iteration of the joint loop: the carry for the
     next, the history records of its trial steps and why the loop ends, if
-    it does: "converged" (settled, nothing left to free) or "stalled" (no
-    trial step lowered the displacement)."""
+    it does: "converged" (settled, nothing left to free), "stalled" (no
+    trial step lowered the displacement) or "basin" (the state is in the
+    full field's basin)."""
 
     carry: _JointCarry
     records: tuple[dict[str, Any], ...]
@@ -1117,10 +1118,12 @@ def _joint_step(
     iteration: int,
     prior: float | None,
     report: Callable[[str], None],
+    basin: float = 0.0,
 ) -> _JointStep:
     """One iteration of the joint loop: linearise at the current state,
     choose the free parameters, then up to :data:`MAX_TRIALS` trial
-    solves with growing damping until one lowers the displacement."""
+    solves with growing damping until one lowers the displacement; none
+    if the state's own RMS displacement is already below *basin*."""
     names = problem.parameters
     solved, split = solved_parameters(names)
     prior_rad = _prior_per_axis(prior)
@@ -1146,6 +1149,12 @@ def _joint_step(
     # pattern weighted by its own precision, so one failed pattern cannot
     # veto a step
     before = _rms_displacement(state.field, var)
+    if before < basin:
+        # Weighted with this state's own fit, the last step's result is
+        # in the basin already (measured: 0.40 % of the width with the
+        # weights before the step, 0.23 % with its own; one more DIC step
+        # and measurement moved it to 0.22 %)
+        return _JointStep(carry, (), "basin")
     ncc_before = float(np.mean(state.scores))
     records = []
     for _ in range(MAX_TRIALS):
@@ -1223,7 +1232,7 @@ def _joint_loop(
     history: list[dict[str, Any]] = []
     converged = False
     for it in range(max_iterations):
-        step = _joint_step(problem, carry, it, prior, progress.write)
+        step = _joint_step(problem, carry, it, prior, progress.write, basin)
         carry = step.carry
         history.extend(step.records)
         progress.advance(history[-1] if step.records else None)
@@ -1231,7 +1240,7 @@ def _joint_loop(
             converged = True
             break
         last = step.records[-1] if step.records else {}
-        if last.get("accepted") and last["displacement_after"] < basin:
+        if step.end == "basin" or (last.get("accepted") and last["displacement_after"] < basin):
             # In the full field's basin; the variants, told apart only
             # this close, are chosen before it takes over
             changed = _best_variant_state(problem, carry.state)
