@@ -1910,6 +1910,10 @@ LOWPASS_RANK_TOLERANCE = 1e-4
 #: with the patterns; 0: none.
 HIGHPASS_GRID = (0.0, 1 / 12, 1 / 8, 1 / 6)
 
+#: Patterns (at most) on which the full field chooses its high-pass and
+#: point spread.
+ESTIMATION_PATTERNS = 40
+
 #: Kikuchi contrasts (relative to the background) the full field tries.
 CONTRAST_GRID = (0.0, 0.05, 0.1, 0.15, 0.2, 0.3)
 
@@ -1925,23 +1929,26 @@ def _estimate_processing(problem, arrays, geometry, rotations) -> _Processing:
     a blur of 0.6 px moved pcz by 11 standard errors, band widths being
     what pcz scales), whether the map's mean was divided out, the
     contrast (:data:`CONTRAST_GRID`)."""
-    # Every pattern: on 50 of 121 the map's mean pattern (the ghost) was
-    # not found
     n = len(problem.points)
     shape = tuple(problem.experimental.shape[1:])
     e = ori.standardise(problem.experimental.reshape(n, -1).astype(np.float64))
     s0 = ori.project_patterns(rotations, geometry.detector(problem.points), arrays).reshape(n, -1)
+    # The high-pass and the point spread, properties of each pattern, on
+    # every k-th pattern; the ghost and the contrast on all of them (on 50
+    # of 121 the map's mean pattern was not found)
+    few = np.unique(np.linspace(0, n - 1, min(n, ESTIMATION_PATTERNS)).astype(int))
 
-    def best(candidates):
-        return max(candidates, key=lambda proc: _processed_ncc(e, s0, proc))
+    def best(candidates, pick=slice(None)):
+        return max(candidates, key=lambda proc: _processed_ncc(e[pick], s0[pick], proc))
 
     proc = best(
-        _Processing(shape, 2 * PSF_STEP, h * shape[1], lobe=problem.lobe) for h in HIGHPASS_GRID
+        (_Processing(shape, 2 * PSF_STEP, h * shape[1], lobe=problem.lobe) for h in HIGHPASS_GRID),
+        few,
     )
     sigmas = np.arange(0.0, PSF_MAX + 1e-9, PSF_STEP)
     ncc = []
     for sg in sigmas:
-        ncc.append(_processed_ncc(e, s0, replace(proc, psf=sg)))
+        ncc.append(_processed_ncc(e[few], s0[few], replace(proc, psf=sg)))
         # Past the peak twice in a row: the rest of the grid cannot win
         if len(ncc) > 2 and ncc[-1] < ncc[-2] < max(ncc):
             break
