@@ -688,6 +688,11 @@ NULL_SPACE_TOLERANCE = 1e-6
 #: standard error.
 FULL_FIELD_ITERATIONS = 5
 FULL_FIELD_STOP = 0.25
+#: ... and no orientation moves by more than this (deg).
+FULL_FIELD_ROTATION_STOP = 0.01
+#: The full field builds its Jacobians again after a step that lowered
+#: chi2 by more than this fraction.
+JACOBIAN_REFRESH = 0.1
 
 #: RMS displacement (fraction of the width) below which the DIC stage
 #: hands over to the full field: well inside its basin (measured: from
@@ -2159,14 +2164,18 @@ def _gauss_newton(
     geometry, rotations = state.geometry, state.rotations
     free = [i for i, nm in enumerate(solved) if nm not in held]
     chi2_prev, weights, last, cov, system = np.inf, None, None, None, None
+    chi2_before = np.inf
     for it in range(FULL_FIELD_ITERATIONS):
-        # The Jacobians of the first step serve every step (in the basin
-        # they hardly change; building them is most of the cost): each
-        # later step simulates the patterns only
+        # The Jacobians of the first step serve the next steps (in the
+        # basin they hardly change; building them is most of the cost):
+        # those simulate the patterns only, unless the last step lowered
+        # chi2 by a large fraction (far from the solution, as after a
+        # change of variants, the first Jacobians converged slowly)
+        refresh = it == 0 or chi2_before - chi2_prev > JACOBIAN_REFRESH * chi2_before
         residual, j_geo, j_rot, var = _intensity_system(
-            problem, arrays, geometry, rotations, solved, processing, jacobians=it == 0
+            problem, arrays, geometry, rotations, solved, processing, jacobians=refresh
         )
-        if it == 0:
+        if refresh:
             jg, jr = j_geo, j_rot
         if weights is None:
             # Weights fixed at the first step, so that chi2 compares steps
@@ -2194,7 +2203,7 @@ def _gauss_newton(
                 jg[..., free], jr, residual, weights, prior=prior_rad, offsets=offsets
             )
         delta = dict(zip([solved[i] for i in free], map(float, upd.delta)))
-        chi2_prev, last = full.chi2, (geometry, rotations)
+        chi2_before, chi2_prev, last = chi2_prev, full.chi2, (geometry, rotations)
         geometry = geometry.updated(_expand(delta, split))
         rotations = rotations * rotations_from_vectors(upd.rotations)
         history.append(
@@ -2218,8 +2227,14 @@ def _gauss_newton(
             f"contrast {processing.contrast:g}, ghost {processing.ghost}"
             + (f", held {', '.join(held)}" if held else "")
         )
-        # Steps this small leave the covariance as it was
-        if all(abs(delta[solved[i]]) <= FULL_FIELD_STOP * se[i] for i in free):
+        # Steps this small leave the covariance as it was; the
+        # orientations, refined here too, must have settled as well (with
+        # the first step's Jacobians they converge more slowly: a
+        # noise-free BaTiO3 map ended 0.052 deg off on average, at 0.05)
+        rotation_step = np.rad2deg(np.sqrt((upd.rotations**2).sum(axis=-1)).max())
+        if rotation_step <= FULL_FIELD_ROTATION_STOP and all(
+            abs(delta[solved[i]]) <= FULL_FIELD_STOP * se[i] for i in free
+        ):
             break
     return geometry, rotations, cov, system
 
