@@ -737,18 +737,17 @@ class _Problem:
         return ori.master_pattern_arrays(self.master_pattern, self.energy)
 
     def simulate(self, geometry: MapGeometry, rotations: Rotation) -> np.ndarray:
-        """Patterns (N, rows, columns), float32, as kikuchipy's
+        """Patterns (N, rows, columns), float64, as kikuchipy's
         ``get_patterns`` projects them, by this package's compiled
         kernel (a quarter of kikuchipy's time on 100 patterns)."""
-        det = geometry.detector(self.points)
-        return ori.project_patterns(rotations, det, self.arrays).astype(np.float32)
+        return ori.project_patterns(rotations, geometry.detector(self.points), self.arrays)
 
     def compare(
         self, geometry: MapGeometry, rotations: Rotation
     ) -> tuple[dsp.DisplacementField, np.ndarray]:
         """Displacement field and NCC (N,) of the patterns simulated at
         *geometry* against the experimental ones, from one simulation."""
-        sim = self.simulate(geometry, rotations)
+        sim = self.simulate(geometry, rotations).astype(np.float32)
         field = dsp.measure_displacements(sim, self.experimental, **self.dic_kwargs)
         return field, _ncc(sim, self.experimental)
 
@@ -758,7 +757,7 @@ class _Problem:
     def ncc(self, geometry: MapGeometry, rotations: Rotation) -> np.ndarray:
         """NCC (N,) of the patterns simulated at *geometry* with the
         experimental ones, full resolution."""
-        return _ncc(self.simulate(geometry, rotations), self.experimental)
+        return _ncc(self.simulate(geometry, rotations).astype(np.float32), self.experimental)
 
     def refine_orientations(
         self, geometry: MapGeometry, rotations: Rotation, binning: int | None = None
@@ -1776,12 +1775,12 @@ class _FullField:
     held: tuple[str, ...] = ()
 
 
-def _gaussian_matrix(n: int, sigma: float, truncate: float = 4.0) -> np.ndarray:
+def _gaussian_matrix(n: int, sigma: float) -> np.ndarray:
     """The (n, n) matrix of a 1D Gaussian filter of *sigma* px with
     edge-replicating borders (scipy's ``mode="nearest"``)."""
     if sigma <= 0:
         return np.eye(n)
-    return ndimage.gaussian_filter1d(np.eye(n), sigma, axis=0, mode="nearest", truncate=truncate)
+    return ndimage.gaussian_filter1d(np.eye(n), sigma, axis=0, mode="nearest")
 
 
 @functools.lru_cache(maxsize=16)
@@ -2009,8 +2008,7 @@ def _intensity_system(problem, arrays, geometry, rotations, solved, processing, 
         s0, cols = processing(s0, np.concatenate([jg, jr], axis=2))
         jg, jr = cols[..., :k], cols[..., k:]
     else:
-        s0 = ori.project_patterns(rotations, geometry.detector(problem.points), arrays)
-        s0 = processing(s0.reshape(n, -1).astype(np.float64))[0]
+        s0 = processing(problem.simulate(geometry, rotations).reshape(n, -1))[0]
     # Gain and offset of each pattern, then projected out of every column:
     # exactly their elimination (variable projection). The two basis
     # vectors, the constant and the centred model, are orthogonal: the
@@ -2125,7 +2123,7 @@ def _hold(system: _System, held, start: MapGeometry, solved, split, prior, cov):
     taking back what they had absorbed of the held parameters' moves. No
     new simulation: a second Gauss-Newton pass from the DIC stage's state
     with them held reached the same PC within 1.1e-5 (an eighth of a
-    standard error) on two processed Ni maps, with three more iterations."""
+    standard error) on two processed Ni maps."""
     idx = [i for i, nm in enumerate(solved) if nm in held]
     free = [i for i, nm in enumerate(solved) if nm not in held]
     back = (
