@@ -164,7 +164,7 @@ def _map_key(c: dict) -> tuple:
 
 
 def make_map(c: dict, seed: int, dose: float):
-    from kikuchipy_geomdic import synthetic
+    from kikuchipy_geomdic.validation import synthetic
 
     nav = (c["nav"], c["nav"])
     shape = (c["size"], c["size"])
@@ -185,7 +185,7 @@ def make_map(c: dict, seed: int, dose: float):
 
 
 def run_one(sm, c: dict, seed: int, t_map: float) -> dict:
-    from kikuchipy_geomdic.refinement import TILT_DIFFERENCE, refine_geometry_dic
+    from kikuchipy_geomdic.calibration.refinement import TILT_DIFFERENCE, refine_geometry_dic
 
     t0 = time.perf_counter()
     res = refine_geometry_dic(
@@ -500,7 +500,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     suffix = ("_quick" if args.quick else "") + ("_unrestricted" if args.unrestricted else "")
     if args.unrestricted:
-        from kikuchipy_geomdic import refinement
+        from kikuchipy_geomdic.calibration import refinement
 
         for k in refinement.DETERMINACY_LIMITS:
             refinement.DETERMINACY_LIMITS[k] = float("inf")

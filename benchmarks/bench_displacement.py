@@ -1,7 +1,7 @@
 """Speed and accuracy of the DIC displacement measurement.
 
 For each pattern size and DIC backend: patterns per second of
-:func:`kikuchipy_geomdic.displacement.measure_displacements` under two
+:func:`kikuchipy_geomdic.patterns.displacement.measure_displacements` under two
 Dask schedulers, and the RMS error per ROI against the forward
 displacement map (averaged over the same vectors as the measurement), on
 noise-free patterns and on "experimental" ones (1 px blur, Poisson noise
@@ -36,10 +36,10 @@ from kikuchipy.detectors import EBSDDetector
 from orix.quaternion import Rotation
 from scipy import ndimage
 
-from kikuchipy_geomdic import displacement as dsp
-from kikuchipy_geomdic import synthetic
 from kikuchipy_geomdic.geometry import forward_map
-from kikuchipy_geomdic.simulation import simulate_patterns
+from kikuchipy_geomdic.patterns import displacement as dsp
+from kikuchipy_geomdic.patterns.simulation import simulate_patterns
+from kikuchipy_geomdic.validation import synthetic
 
 PC_A, ANGLES_A = (0.5, 0.3, 0.6), (0.0, 0.0, 70.0, 0.0)
 PC_B, ANGLES_B = (0.51, 0.31, 0.59), (0.5, 0.5, 70.0, 0.0)

@@ -82,9 +82,9 @@ import numpy as np  # noqa: E402
 from _tee import Tee  # noqa: E402
 from orix.quaternion import Rotation  # noqa: E402
 
-from kikuchipy_geomdic import comparison, study, synthetic  # noqa: E402
-from kikuchipy_geomdic.maps import flat_index  # noqa: E402
-from kikuchipy_geomdic.refinement import calibration_points  # noqa: E402
+from kikuchipy_geomdic.calibration.refinement import calibration_points  # noqa: E402
+from kikuchipy_geomdic.geometry.maps import flat_index  # noqa: E402
+from kikuchipy_geomdic.validation import comparison, study, synthetic  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 #: A point further than this (deg) from the common rotation counts as off
@@ -223,7 +223,7 @@ class _Recorder:
 def run_oracle(sm, points, dic_kwargs=None):
     """The geometry calibrated with the true orientations held fixed (a
     prior of :data:`ORACLE_PRIOR`): the noise floor of the data."""
-    from kikuchipy_geomdic.refinement import refine_geometry_dic
+    from kikuchipy_geomdic.calibration.refinement import refine_geometry_dic
 
     t0 = time.perf_counter()
     res = refine_geometry_dic(

@@ -33,8 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from kikuchipy_geomdic import study as st
-from kikuchipy_geomdic import synthetic
+from kikuchipy_geomdic.validation import study as st
+from kikuchipy_geomdic.validation import synthetic
 
 RESULTS = Path(__file__).resolve().parent / "results"
 

@@ -10,7 +10,7 @@ and cores (one after the other in one process, numba compiled first):
     indexing at the nominal geometry: the truth times a common rotation of
     0.9 deg and a relative scatter of 0.1 deg (the figures measured on a
     Ni map indexed at the nominal geometry; see the reindexing issue).
-    :func:`kikuchipy_geomdic.reindex.reindex` with ``method="geomdic"``
+    :func:`kikuchipy_geomdic.indexing.reindex.reindex` with ``method="geomdic"``
     (this package's Gauss-Newton solver, with DIC RMS) and with
     ``method="kikuchipy"`` (SciPy Nelder-Mead through
     ``EBSD.refine_orientation``). Printed: patterns per second, the
@@ -55,8 +55,8 @@ import warnings
 import numpy as np
 from orix.quaternion import Rotation
 
-from kikuchipy_geomdic import synthetic
-from kikuchipy_geomdic.reindex import reindex
+from kikuchipy_geomdic.indexing.reindex import reindex
+from kikuchipy_geomdic.validation import synthetic
 
 MARK = "BENCH_RESULT "
 
@@ -204,7 +204,7 @@ def _with_rotations(xmap, rotations):
 
 
 def far(args) -> None:
-    from kikuchipy_geomdic.refinement import refine_geometry_dic
+    from kikuchipy_geomdic.calibration.refinement import refine_geometry_dic
 
     size = args.size[0]
     _warm_up(size)

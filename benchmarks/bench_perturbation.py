@@ -38,7 +38,7 @@ import numpy as np
 
 matplotlib.use("Agg")
 
-from kikuchipy_geomdic import study as st  # noqa: E402
+from kikuchipy_geomdic.validation import study as st  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -50,7 +50,7 @@ ORIENTATIONS = {"BaTiO3": "variants", "Si": "single"}
 def fill_eq2(table, material, nav, shape, seed=0):
     """Compute ``initial_displacement_eq2`` where it is missing (tables
     written before the column existed); deterministic from the settings."""
-    from kikuchipy_geomdic import synthetic
+    from kikuchipy_geomdic.validation import synthetic
 
     missing = ~np.isfinite(table["initial_displacement_eq2"])
     if not missing.any():

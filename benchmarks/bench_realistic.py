@@ -47,9 +47,9 @@ import warnings
 
 import numpy as np
 
-from kikuchipy_geomdic import synthetic
-from kikuchipy_geomdic.bound import cramer_rao_bound
-from kikuchipy_geomdic.refinement import refine_geometry_dic
+from kikuchipy_geomdic.calibration.bound import cramer_rao_bound
+from kikuchipy_geomdic.calibration.refinement import refine_geometry_dic
+from kikuchipy_geomdic.validation import synthetic
 
 CASES = {
     "moderate": dict(camera=synthetic.MODERATE),
@@ -117,7 +117,7 @@ def run(case: str, seed: int, side: int, size: int, kikuchipy: bool) -> list[dic
             )
         )  # fmt: skip
     if kikuchipy:
-        from kikuchipy_geomdic.comparison import pattern_wise_geometry
+        from kikuchipy_geomdic.validation.comparison import pattern_wise_geometry
 
         t0 = time.perf_counter()
         pw = pattern_wise_geometry(sm, res.points)

@@ -5,7 +5,7 @@ geometry, starting orientations 0.3 deg off) is simulated lazily and
 written chunk by chunk to a kikuchipy h5ebsd file as 8-bit patterns, as a
 microscope would write it. The file is then opened lazily and every
 orientation is refined with the true (calibrated) detector, one PC per
-pattern, by :func:`kikuchipy_geomdic.reindex.reindex` through dask
+pattern, by :func:`kikuchipy_geomdic.indexing.reindex.reindex` through dask
 (``--method geomdic``, the default: this package's solver; ``--method
 kikuchipy``: kikuchipy's ``refine_orientation``).
 
@@ -54,7 +54,7 @@ def _report(**values) -> None:
 
 
 def stage_baseline(args) -> None:
-    from kikuchipy_geomdic import synthetic
+    from kikuchipy_geomdic.validation import synthetic
 
     synthetic.master_pattern("Si")
     _report()
@@ -65,8 +65,8 @@ def stage_generate(args) -> None:
     import numpy as np
     from orix import io as orix_io
 
-    from kikuchipy_geomdic import synthetic
-    from kikuchipy_geomdic.conventions import save_detector
+    from kikuchipy_geomdic.io.conventions import save_detector
+    from kikuchipy_geomdic.validation import synthetic
 
     work = Path(args.workdir)
     t0 = time.perf_counter()
@@ -96,9 +96,9 @@ def stage_reindex(args) -> None:
     import numpy as np
     from orix import io as orix_io
 
-    from kikuchipy_geomdic import synthetic
-    from kikuchipy_geomdic.conventions import load_detector
-    from kikuchipy_geomdic.reindex import reindex
+    from kikuchipy_geomdic.indexing.reindex import reindex
+    from kikuchipy_geomdic.io.conventions import load_detector
+    from kikuchipy_geomdic.validation import synthetic
 
     work = Path(args.workdir)
     signal = kp.load(work / "map.h5", lazy=True)

@@ -32,9 +32,9 @@ from pathlib import Path
 
 import dask
 
-from kikuchipy_geomdic import study as st
-from kikuchipy_geomdic import synthetic
-from kikuchipy_geomdic.refinement import refine_geometry_dic
+from kikuchipy_geomdic.calibration.refinement import refine_geometry_dic
+from kikuchipy_geomdic.validation import study as st
+from kikuchipy_geomdic.validation import synthetic
 
 RESULTS = Path(__file__).resolve().parent / "results"
 STAGES = {

@@ -74,11 +74,11 @@ import warnings
 import numpy as np
 from orix.quaternion import Rotation
 
-from kikuchipy_geomdic import synthetic
-from kikuchipy_geomdic.comparison import pattern_wise_geometry
+from kikuchipy_geomdic.calibration.refinement import calibration_points, refine_geometry_dic
 from kikuchipy_geomdic.geometry import copy_detector
-from kikuchipy_geomdic.refinement import calibration_points, refine_geometry_dic
-from kikuchipy_geomdic.reindex import VARIANT_SIGNIFICANCE, reindex
+from kikuchipy_geomdic.indexing.reindex import VARIANT_SIGNIFICANCE, reindex
+from kikuchipy_geomdic.validation import synthetic
+from kikuchipy_geomdic.validation.comparison import pattern_wise_geometry
 
 KINDS = {0: "base", 1: "180 deg", 2: "90 deg"}
 #: RMS error (deg) of the starting orientations; the calibration's

@@ -6,7 +6,7 @@ matplotlib.use("Agg")
 
 import pytest
 
-from kikuchipy_geomdic import synthetic
+from kikuchipy_geomdic.validation import synthetic
 
 
 @pytest.fixture(scope="session")

@@ -22,7 +22,7 @@ import pytest
 from kikuchipy.signals import EBSD, LazyEBSD
 
 import kikuchipy_geomdic
-from kikuchipy_geomdic.refinement import refine_geometry_dic
+from kikuchipy_geomdic.calibration.refinement import refine_geometry_dic
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "kikuchipy_geomdic"
@@ -82,7 +82,7 @@ def test_wheel_holds_the_package_data(wheel):
     missing = [n for n in data if n not in names]
     assert not missing, missing
     # Every data file of the source tree, and every module
-    for path in [*(PACKAGE / "data").rglob("*"), *PACKAGE.glob("*.py")]:
+    for path in [*(PACKAGE / "data").rglob("*"), *PACKAGE.rglob("*.py")]:
         if path.is_file() and "__pycache__" not in path.parts:
             name = path.relative_to(ROOT).as_posix()
             assert name in names, name
@@ -150,3 +150,78 @@ def test_registration_leaves_a_foreign_method_alone(monkeypatch):
     with pytest.warns(UserWarning, match="already has a refine_geometry_dic"):
         kikuchipy_geomdic._register()
     assert EBSD.refine_geometry_dic is refine_geometry_dic
+
+
+def test_reindex_is_a_method_too():
+    from kikuchipy_geomdic.indexing.reindex import reindex
+
+    assert EBSD.reindex is reindex
+    assert LazyEBSD.reindex is reindex
+    assert "signal" in inspect.signature(reindex).parameters
+
+
+# --------------------------------------------------------------------- #
+# Layers
+# --------------------------------------------------------------------- #
+
+#: The package's layers, bottom first (the package docstring says what each
+#: holds). A module may import from its own layer and those below.
+LAYERS = (
+    "_version",
+    "geometry",
+    "io",
+    "patterns",
+    "indexing",
+    "plotting",
+    "calibration",
+    "validation",
+    "cli",
+)
+
+
+def _layer(module: str) -> int:
+    """Layer of a dotted module name inside the package; the package's own
+    ``__init__`` and ``__main__`` sit above every layer."""
+    parts = module.split(".")
+    if len(parts) == 1 or parts[1] in ("__init__", "__main__"):
+        return len(LAYERS)
+    return LAYERS.index(parts[1])
+
+
+def _imports(path: Path) -> list[tuple[int, str]]:
+    """Every import of the package in *path*, also those inside functions."""
+    import ast
+
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module:
+            if node.level:
+                raise AssertionError(f"{path}: relative import at line {node.lineno}")
+            if node.module == "kikuchipy_geomdic":
+                found += [(node.lineno, f"kikuchipy_geomdic.{a.name}") for a in node.names]
+            elif node.module.startswith("kikuchipy_geomdic."):
+                found.append((node.lineno, node.module))
+        elif isinstance(node, ast.Import):
+            found += [
+                (node.lineno, a.name) for a in node.names if a.name.startswith("kikuchipy_geomdic")
+            ]
+    return found
+
+
+def test_no_module_imports_a_layer_above_its_own():
+    modules = sorted(PACKAGE.rglob("*.py"))
+    assert len(modules) > 20
+    wrong = []
+    for path in modules:
+        name = ".".join(path.relative_to(ROOT).with_suffix("").parts)
+        own = _layer(name)
+        for line, imported in _imports(path):
+            if _layer(imported) > own:
+                wrong.append(f"{name}:{line} imports {imported}")
+    assert not wrong, "\n".join(wrong)
+
+
+def test_every_layer_is_a_known_subpackage():
+    found = {p.name for p in PACKAGE.iterdir() if (p / "__init__.py").is_file()}
+    found |= {p.stem for p in PACKAGE.glob("_*.py") if p.stem not in ("__init__", "__main__")}
+    assert found == set(LAYERS)

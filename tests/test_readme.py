@@ -21,7 +21,7 @@ import pytest
 from orix import io as orix_io
 from test_cli import write_emsoft_master_pattern
 
-from kikuchipy_geomdic import synthetic
+from kikuchipy_geomdic.validation import synthetic
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 FILES = ("map.h5", "map.ang", "Si-master-20kV.h5")
@@ -54,7 +54,7 @@ def test_use_block_names_the_files():
 
 
 def test_kikuchipy_alone_refuses_the_file_read_map(files):
-    """Why the README reindexes with kikuchipy_geomdic.reindex.reindex."""
+    """Why the README reindexes with kikuchipy_geomdic.indexing.reindex.reindex."""
     d, sm = files
     with contextlib.redirect_stdout(io.StringIO()):
         xmap = orix_io.load(str(d / "map.ang"))

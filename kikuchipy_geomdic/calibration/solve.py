@@ -1,0 +1,464 @@
+"""The linear solves of one geometry update.
+
+Two solvers, plain arrays in and out:
+
+- :func:`solve_update`, the paper's (section 2.4, Eqs. 7-11): the
+  *average* field ``b`` (2R) against a Jacobian ``J`` (2R x K, pixels per
+  parameter unit) with the ROI weights (R), in the order of
+  :mod:`kikuchipy_geomdic.patterns.displacement`.
+- :func:`solve_joint`: every pattern's own field against the geometry
+  *and* one small rotation per pattern, the rotations eliminated exactly
+  (Schur complement). Averaging the fields first, as the paper does,
+  attributes to the geometry whatever part of each pattern's field an
+  orientation error explains (a PC shift is almost a rotation), and
+  orientations indexed at a wrong geometry share such an error; the joint
+  solve does not average, so it does not need the orientation errors to
+  cancel.
+
+Exact degeneracies
+------------------
+Some parameter combinations do not change the patterns at all (in
+kikuchipy's projection, ``tilt`` and ``sample_tilt`` enter only as their
+difference: see :mod:`kikuchipy_geomdic.geometry`). Their Jacobian columns
+are then exactly dependent, the normalised Jacobian has a zero singular
+value, and Eq. 10 is singular but for the damping. Rather than let the
+damping split the change by accident, the solve is done through the
+singular value decomposition: directions with a singular value below
+``rtol`` times the largest are dropped, which gives the *minimum-norm*
+update in the column-normalised parameters. For tilt and sample_tilt,
+whose columns have equal norms, that is an equal and opposite split of
+the change of ``tilt - sample_tilt``. To keep one of the pair fixed
+instead, leave it out of the refined parameters. Dropped directions are
+reported (:attr:`Update.null_space`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Update", "JointUpdate", "solve_update", "solve_joint", "coupling_matrix"]
+
+
+@dataclass(frozen=True)
+class Update:
+    """The result of one linear solve.
+
+    Attributes
+    ----------
+    delta
+        Parameter update (K,), in parameter units.
+    singular_values
+        Singular values of the weighted, column-normalised Jacobian,
+        largest first.
+    null_space
+        (K, d) array whose columns are the unit directions, in
+        column-normalised parameters, that the data do not constrain
+        (``d = 0`` when there is no degeneracy).
+    column_norms
+        Norms ``s_k`` of the weighted Jacobian columns (Eq. 9).
+    predicted_residual
+        Weighted residual predicted after the update, ``w (b + J delta)``.
+    """
+
+    delta: np.ndarray
+    singular_values: np.ndarray
+    null_space: np.ndarray
+    column_norms: np.ndarray
+    predicted_residual: np.ndarray
+
+
+def solve_update(
+    jacobian: np.ndarray,
+    residual: np.ndarray,
+    weights: np.ndarray,
+    damping: float = 1e-3,
+    rtol: float = 1e-8,
+) -> Update:
+    r"""Return the weighted, column-normalised, damped least-squares update.
+
+    Solves :math:`(\tilde{J}^T\tilde{J} + \lambda I)\Delta\tilde{p} =
+    -\tilde{J}^T b_w` with :math:`\tilde{J} = W J S^{-1}`,
+    :math:`b_w = W b` and :math:`\Delta p = S^{-1}\Delta\tilde{p}`
+    (Eqs. 8-11), through the SVD of :math:`\tilde{J}` so that exactly
+    unconstrained directions get no update (minimum norm).
+
+    Parameters
+    ----------
+    jacobian
+        ``J = db/dp`` of shape (2R, K).
+    residual
+        ``b`` of shape (2R,): displacement from simulated to experimental
+        patterns.
+    weights
+        ROI weights (R,) of Eq. 8, or (2R,) already expanded.
+    damping
+        :math:`\lambda` of Eq. 10.
+    rtol
+        Singular values below ``rtol`` times the largest are treated as
+        exactly zero (degenerate).
+
+    Returns
+    -------
+    update
+        :class:`Update`.
+
+    Raises
+    ------
+    ValueError
+        On mismatched shapes, non-finite input, or a parameter whose column
+        is zero after weighting (it cannot be measured).
+
+    Examples
+    --------
+    Two columns that are exact opposites (like tilt and sample_tilt):
+
+    >>> import numpy as np
+    >>> from kikuchipy_geomdic.calibration.solve import solve_update
+    >>> j = np.array([[1.0, 2.0, -2.0], [0.0, 1.0, -1.0], [1.0, 0.0, 0.0]])
+    >>> b = -j @ np.array([0.1, 0.3, 0.0])
+    >>> u = solve_update(j, b, np.ones(3), damping=0)
+    >>> np.round(u.delta, 6).tolist()
+    [0.1, 0.15, -0.15]
+    >>> u.null_space.shape
+    (3, 1)
+    """
+    j = np.asarray(jacobian, dtype=np.float64)
+    b = np.asarray(residual, dtype=np.float64)
+    w = np.asarray(weights, dtype=np.float64)
+    if j.ndim != 2 or b.shape != (j.shape[0],):
+        raise ValueError(
+            f"Jacobian {j.shape} and residual {b.shape} do not match: expected (2R, K) and (2R,)"
+        )
+    if w.shape == (j.shape[0] // 2,):
+        w = np.repeat(w, 2)
+    if w.shape != b.shape:
+        raise ValueError(f"weights {w.shape} fit neither R nor 2R = {b.shape[0]}")
+    if not (np.isfinite(j).all() and np.isfinite(b).all() and np.isfinite(w).all()):
+        raise ValueError("Jacobian, residual and weights must be finite")
+    jw = j * w[:, None]
+    bw = b * w
+    s = np.linalg.norm(jw, axis=0)
+    if np.any(s == 0):
+        raise ValueError(
+            f"Jacobian column(s) {np.flatnonzero(s == 0).tolist()} are zero after "
+            "weighting: those parameters have no measurable effect"
+        )
+    jt = jw / s
+    u, sv, vt = np.linalg.svd(jt, full_matrices=False)
+    keep = sv > rtol * sv[0]
+    # Eq. 10 in the SVD basis: filter factors sigma / (sigma^2 + lambda)
+    coef = np.zeros_like(sv)
+    coef[keep] = sv[keep] / (sv[keep] ** 2 + damping)
+    dpt = -vt.T @ (coef * (u.T @ bw))
+    delta = dpt / s
+    return Update(
+        delta=delta,
+        singular_values=sv,
+        null_space=vt[~keep].T,
+        column_norms=s,
+        predicted_residual=bw + jw @ delta,
+    )
+
+
+def coupling_matrix(jacobian: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """Return the normalised coupling matrix of the paper's Fig. 3C.
+
+    The scalar products of the (weighted) sensitivity fields, normalised
+    so the diagonal is 1: the cosine of the angle between two parameters'
+    displacement signatures, from -1 (opposite) to 1.
+
+    Parameters
+    ----------
+    jacobian
+        (2R, K).
+    weights
+        ROI weights (R,) or (2R,); default all ones.
+
+    Returns
+    -------
+    coupling
+        (K, K) symmetric matrix.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from kikuchipy_geomdic.calibration.solve import coupling_matrix
+    >>> coupling_matrix(np.array([[1.0, -2.0], [0.0, 0.0]])).tolist()
+    [[1.0, -1.0], [-1.0, 1.0]]
+    """
+    j = np.asarray(jacobian, dtype=np.float64)
+    if weights is not None:
+        w = np.asarray(weights, dtype=np.float64)
+        if w.shape == (j.shape[0] // 2,):
+            w = np.repeat(w, 2)
+        j = j * w[:, None]
+    n = np.linalg.norm(j, axis=0)
+    n = np.where(n > 0, n, 1.0)
+    jn = j / n
+    return jn.T @ jn
+
+
+@dataclass(frozen=True)
+class JointUpdate:
+    """The result of one joint solve (:func:`solve_joint`).
+
+    Attributes
+    ----------
+    delta
+        Geometry update (K,), in parameter units, in the order of the
+        parameters solved for.
+    rotations
+        Rotation updates (N, 3) in radians: rotation vectors of the right
+        factor ``T`` of each orientation, ``g -> g * T``.
+    covariance
+        Covariance (K, K) of *delta* in parameter units: *model_covariance*
+        enlarged wherever the scatter of the patterns' own contributions
+        says the errors within a pattern are correlated (cluster-robust,
+        never smaller than the model).
+    model_covariance
+        The covariance if all components were independent: the inverse
+        of the reduced normal matrix (rotations eliminated, prior
+        included) times the variance factor. Pseudo-inverse when
+        degenerate.
+    null_space
+        (K, d) unit directions, in parameter units, that the data do not
+        constrain at all (e.g. tilt against sample_tilt).
+    rotation_sigma
+        Standard errors (N, 3) of the rotation updates, radians.
+    variance_factor
+        Weighted residual sum of squares of the fit over its degrees of
+        freedom: 1 when *weights* are true inverse variances.
+    chi2
+        Weighted residual sum of squares before the update (data only).
+    predicted_chi2
+        The same predicted after the update (data only).
+    dof
+        Degrees of freedom: measured components minus unknowns.
+    reduced_norms, full_norms
+        Square roots of the diagonals of the geometry normal matrix with
+        the rotations eliminated and without: their ratio says how much
+        of a parameter's signature survives once every orientation may
+        move (small for the detector angles).
+    """
+
+    delta: np.ndarray
+    rotations: np.ndarray
+    covariance: np.ndarray
+    model_covariance: np.ndarray
+    null_space: np.ndarray
+    rotation_sigma: np.ndarray
+    variance_factor: float
+    chi2: float
+    predicted_chi2: float
+    dof: int
+    reduced_norms: np.ndarray
+    full_norms: np.ndarray
+
+    @property
+    def standard_errors(self) -> np.ndarray:
+        """Standard errors (K,) of *delta*; inf for parameters with a
+        component in :attr:`null_space`."""
+        se = np.sqrt(np.clip(np.diag(self.covariance), 0, None))
+        if self.null_space.size:
+            se = np.where(np.abs(self.null_space).max(axis=1) > 1e-9, np.inf, se)
+        return se
+
+    def standard_error(self, coefficients: np.ndarray) -> float:
+        """Standard error of a linear combination ``c . delta``; inf if
+        the combination is not determined."""
+        c = np.asarray(coefficients, dtype=np.float64)
+        if self.null_space.size and np.abs(c @ self.null_space).max() > 1e-9 * np.linalg.norm(c):
+            return float("inf")
+        return float(np.sqrt(max(c @ self.covariance @ c, 0.0)))
+
+
+def _with_pattern_correlations(
+    model: np.ndarray, s_inv: np.ndarray, scores: np.ndarray, k: int
+) -> np.ndarray:
+    """The covariance *model* (independent components), enlarged in every
+    direction where the patterns' scatter says it is larger.
+
+    DIC errors within a pattern are correlated (one misfit band moves
+    all its features), which the model, built from independent vectors,
+    misses: measured on 4 x 4 maps of 60 px, a step of 3.5 model standard
+    errors in the azimuthal angle went away from the truth. The
+    cluster-robust (sandwich) estimate ``S^-1 (sum_i s_i s_i^T) S^-1``
+    of the patterns' scores ``s_i`` sees any correlation within a
+    pattern; with few patterns it is itself noisy, so the result is the
+    model plus the positive part of their difference, never below either.
+    """
+    n = int(np.count_nonzero(np.abs(scores).sum(axis=1)))
+    if n <= k:
+        return model
+    robust = s_inv @ (scores.T @ scores) @ s_inv * n / (n - k)
+    d = robust - model
+    mu, v = np.linalg.eigh((d + d.T) / 2)
+    return model + (v * np.clip(mu, 0, None)) @ v.T
+
+
+def solve_joint(
+    j_geo: np.ndarray,
+    j_rot: np.ndarray,
+    residual: np.ndarray,
+    weights: np.ndarray,
+    prior: float | None = None,
+    offsets: np.ndarray | None = None,
+    damping: float = 0.0,
+    rtol: float = 1e-10,
+) -> JointUpdate:
+    r"""Return the geometry and per-pattern rotation updates, solved jointly.
+
+    Minimises, over the geometry change :math:`\Delta p` and a rotation
+    :math:`\delta\omega_i` per pattern,
+
+    .. math::
+
+        \sum_i \|W_i^{1/2}(b_i + J_{geo,i}\Delta p + J_{rot,i}\delta\omega_i)\|^2
+        + \sum_i \|\omega_i + \delta\omega_i\|^2 / \sigma_\omega^2
+
+    (the second sum only with a *prior*). Each :math:`\delta\omega_i`
+    is eliminated exactly, a 3 x 3 solve per pattern (Schur complement);
+    the reduced K x K system gives :math:`\Delta p`, damped as
+    Levenberg-Marquardt; back-substitution gives the rotations.
+
+    Parameters
+    ----------
+    j_geo
+        Per-pattern geometry Jacobians (N, M, K): M measured components
+        per pattern (2 per ROI), pixels per parameter unit.
+    j_rot
+        Per-pattern rotation Jacobians (N, M, 3), pixels per radian.
+    residual
+        Per-pattern measured displacements :math:`b_i` (N, M).
+    weights
+        Inverse variances (N, M) of the components, 0 where nothing was
+        measured.
+    prior
+        :math:`\sigma_\omega`, the standard deviation in radians of each
+        component of the orientation errors *offsets* plus the updates:
+        the belief that the starting orientations are free of a common
+        error. None: no prior; a rotation common to all patterns is then
+        seen only through what it cannot mimic.
+    offsets
+        :math:`\omega_i` (N, 3): each orientation's current rotation away
+        from its start, radians. Default zero.
+    damping
+        :math:`\lambda`: the reduced normal matrix :math:`S` becomes
+        :math:`S + \lambda\,\mathrm{diag}(C)`, with :math:`C` the geometry
+        normal matrix before elimination (Marquardt's scaling, on the
+        parameters' full sensitivity).
+    rtol
+        Directions whose reduced curvature, relative to the full
+        sensitivity, is below this are taken as exactly undetermined and
+        get no update (minimum norm), as in :func:`solve_update`.
+
+    Returns
+    -------
+    update
+        :class:`JointUpdate`.
+
+    Examples
+    --------
+    Two patterns, one parameter, each pattern also rotated:
+
+    >>> import numpy as np
+    >>> from kikuchipy_geomdic.calibration.solve import solve_joint
+    >>> rng = np.random.default_rng(0)
+    >>> jg = rng.normal(size=(2, 8, 1))
+    >>> jr = rng.normal(size=(2, 8, 3))
+    >>> w_true = np.array([[0.1, 0, 0], [0, -0.2, 0.05]])
+    >>> b = -(jg[..., 0] * 0.3 + np.einsum("nmk,nk->nm", jr, w_true))
+    >>> u = solve_joint(jg, jr, b, np.ones((2, 8)))
+    >>> np.round(u.delta, 9).tolist(), np.round(u.rotations, 9).tolist()
+    ([0.3], [[0.1, 0.0, 0.0], [0.0, -0.2, 0.05]])
+    """
+    jg = np.asarray(j_geo, dtype=np.float64)
+    jr = np.asarray(j_rot, dtype=np.float64)
+    b = np.asarray(residual, dtype=np.float64)
+    w = np.asarray(weights, dtype=np.float64)
+    if jg.ndim != 3 or jr.shape != jg.shape[:2] + (3,) or b.shape != jg.shape[:2]:
+        raise ValueError(
+            f"Shapes do not match: j_geo {jg.shape} (N, M, K), j_rot {jr.shape} "
+            f"(N, M, 3), residual {b.shape} (N, M)"
+        )
+    if w.shape != b.shape:
+        raise ValueError(f"weights {w.shape} differ from residual {b.shape}")
+    if not all(np.isfinite(a).all() for a in (jg, jr, b, w)) or (w < 0).any():
+        raise ValueError("Jacobians, residual and weights must be finite, weights >= 0")
+    n, _, k = jg.shape
+    p = 0.0 if prior is None else 1.0 / float(prior) ** 2
+    if prior is not None and not (np.isfinite(p) and prior > 0):
+        raise ValueError(f"prior must be a positive standard deviation, not {prior}")
+    w0 = np.zeros((n, 3)) if offsets is None else np.asarray(offsets, dtype=np.float64)
+
+    # Batched matrix products (BLAS): einsum over the M vectors or pixels
+    # of a full-field system took most of its time
+    jgw_t = np.swapaxes(jg * w[..., None], 1, 2)
+    jrw_t = np.swapaxes(jr * w[..., None], 1, 2)
+    a = jrw_t @ jr + p * np.eye(3)
+    bb = jrw_t @ jg
+    c = jgw_t @ jg
+    ar = (jrw_t @ b[..., None])[..., 0] + p * w0
+    ag = (jgw_t @ b[..., None])[..., 0]
+    # Patterns without vectors and no prior have a singular 3 x 3 block;
+    # the pseudo-inverse gives them no rotation and no say in the geometry
+    a_inv = np.linalg.pinv(a, hermitian=True)
+    a_inv_b = a_inv @ bb
+    a_inv_r = np.einsum("nij,nj->ni", a_inv, ar)
+    s_red = (c - np.einsum("nki,nkj->nij", bb, a_inv_b)).sum(axis=0)
+    g_red = (ag - np.einsum("nki,nk->ni", bb, a_inv_r)).sum(axis=0)
+    c_all = c.sum(axis=0)
+    full = np.sqrt(np.clip(np.diag(c_all), 0, None))
+    if np.any(full == 0):
+        raise ValueError(
+            f"Jacobian column(s) {np.flatnonzero(full == 0).tolist()} are zero after "
+            "weighting: those parameters have no measurable effect"
+        )
+    # Scaled by the full sensitivities, the reduced matrix is
+    # dimensionless; its eigenvalues say how much of each signature
+    # survives the elimination of the rotations
+    s_scaled = s_red / np.outer(full, full)
+    s_scaled = (s_scaled + s_scaled.T) / 2
+    mu, v = np.linalg.eigh(s_scaled)
+    keep = mu > rtol * max(mu.max(), 1.0)
+    g_scaled = g_red / full
+    coef = np.zeros_like(mu)
+    coef[keep] = 1.0 / (mu[keep] + damping)
+    delta = -(v @ (coef * (v.T @ g_scaled))) / full
+    cov_scaled = (v[:, keep] / mu[keep]) @ v[:, keep].T
+    null = v[:, ~keep] / full[:, None]
+    if null.size:
+        null = null / np.linalg.norm(null, axis=0)
+    dw = -(a_inv_r + a_inv_b @ delta)
+
+    r_after = b + jg @ delta + (jr @ dw[..., None])[..., 0]
+    chi2 = float((w * b**2).sum())
+    chi2_after = float((w * r_after**2).sum())
+    n_obs = int((w > 0).sum())
+    n_rot = int((np.linalg.matrix_rank(a, hermitian=True)).sum())
+    dof = max(n_obs - n_rot - int(keep.sum()), 1)
+    factor = chi2_after / dof
+    s_inv = cov_scaled / np.outer(full, full)
+    model = factor * s_inv
+    cov = _with_pattern_correlations(
+        model, s_inv, (jgw_t @ r_after[..., None])[..., 0], int(keep.sum())
+    )
+    # Rotation errors given the geometry (the geometry's own error adds a
+    # common part, see covariance)
+    rot_sigma = np.sqrt(factor * np.clip(np.diagonal(a_inv, axis1=1, axis2=2), 0, None))
+    return JointUpdate(
+        delta=delta,
+        rotations=dw,
+        covariance=cov,
+        model_covariance=model,
+        null_space=null,
+        rotation_sigma=rot_sigma,
+        variance_factor=factor,
+        chi2=chi2,
+        predicted_chi2=chi2_after,
+        dof=dof,
+        reduced_norms=np.sqrt(np.clip(np.diag(s_red), 0, None)),
+        full_norms=full,
+    )

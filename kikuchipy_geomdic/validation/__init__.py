@@ -1,0 +1,12 @@
+"""Validation against a known truth: synthetic maps made the way a camera
+and a user make them, the paper's perturbation study, and the comparison
+with kikuchipy's refiners.
+
+Layer 7: may import every layer below it.
+"""
+
+from kikuchipy_geomdic.validation.comparison import compare_methods
+from kikuchipy_geomdic.validation.study import perturbation_study
+from kikuchipy_geomdic.validation.synthetic import Camera, synthetic_map
+
+__all__ = ["compare_methods", "perturbation_study", "Camera", "synthetic_map"]
