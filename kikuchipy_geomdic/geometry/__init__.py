@@ -61,18 +61,18 @@ from kikuchipy_geomdic.geometry.projection import forward_map, pc_field, sample_
 from kikuchipy_geomdic.geometry.rotations import rotation_vectors, rotations_from_vectors
 
 __all__ = [
-    "PARAMETERS",
     "DEFAULT_PARAMETERS",
     "DEFAULT_STEPS",
-    "UNITS",
     "EQUIVALENT_PARAMETERS",
+    "PARAMETERS",
+    "UNITS",
     "MapGeometry",
     "check_parameters",
-    "solved_parameters",
-    "sample_to_detector_matrix",
-    "pc_field",
-    "forward_map",
     "copy_detector",
+    "forward_map",
+    "pc_field",
     "rotation_vectors",
     "rotations_from_vectors",
+    "sample_to_detector_matrix",
+    "solved_parameters",
 ]
