@@ -5,6 +5,8 @@ A map is handled as (rows, columns) throughout the package: a 1D map of
 pairs; :func:`flat_index` turns them into indices of the flattened map
 (the order of ``signal.data.reshape(-1, *signal_shape)`` and of a whole
 crystal map's points).
+
+Layer 1 (geometry): imports nothing of the package outside its own layer.
 """
 
 from __future__ import annotations

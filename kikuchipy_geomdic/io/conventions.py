@@ -11,7 +11,7 @@ and v5) -- using kikuchipy's own conversions
 ``EBSDDetector(..., convention=...)``), so that nothing here can disagree
 with kikuchipy.
 
-Three forms are written:
+Two forms are written:
 
 - *Records*: plain dicts (JSON-ready) with one PC in a convention, the
   detector angles, the detector shape, pixel size and binning, the
@@ -23,14 +23,11 @@ Three forms are written:
   written with 17 significant digits so that a round trip is exact to
   float64 precision (kikuchipy's default of 7 decimals is not)
   (:func:`save_detector` / :func:`load_detector`).
-- *Summaries*: a JSON file describing a whole calibration, with the
-  geometry in every convention (:func:`summary_from_result`,
-  :func:`write_summary`, :func:`read_summary`,
-  :func:`geometry_from_summary`, :func:`format_summary`).
 
-Every file is written atomically (:func:`atomic_write_text`): a reader
-sees the old file or the complete new one. :func:`csv_text` formats the
-tables (refinement history, study tables) written beside them.
+Detector files are written atomically
+(:func:`~kikuchipy_geomdic.io.files.atomic_write_text`): a reader sees the
+old file or the complete new one. :mod:`kikuchipy_geomdic.io.summary`
+describes a whole calibration, with the geometry in every convention.
 
 Angles
 ------
@@ -46,29 +43,25 @@ The sign of ``azimuthal`` flipped between kikuchipy 0.11 and 0.12. Every
 record and file states the kikuchipy version that wrote it; importing one
 written by kikuchipy < 0.12 flips the sign (with a warning), so the same
 physical geometry comes back.
+
+Layer 2 (io): may import geometry.
 """
 
 from __future__ import annotations
 
-import contextlib
-import json
 import math
-import os
-import platform
 import re
-import tempfile
 import warnings
-from collections.abc import Iterable, Mapping, Sequence
-from datetime import datetime, timezone
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import kikuchipy
 import numpy as np
-import orix
 from kikuchipy.detectors import EBSDDetector
 
-from kikuchipy_geomdic.geometry import PARAMETERS, MapGeometry
+from kikuchipy_geomdic.geometry import MapGeometry
+from kikuchipy_geomdic.io.files import _atomic
 
 __all__ = [
     "CONVENTIONS",
@@ -79,13 +72,6 @@ __all__ = [
     "save_detector",
     "load_detector",
     "read_detector_header",
-    "summary_from_result",
-    "write_summary",
-    "read_summary",
-    "geometry_from_summary",
-    "format_summary",
-    "atomic_write_text",
-    "csv_text",
 ]
 
 #: The PC conventions, canonical names.
@@ -140,10 +126,6 @@ _PC_UNITS = {
 }
 
 _ANGLES = ("tilt", "azimuthal", "twist", "sample_tilt")
-
-#: Format name and version of the JSON summary.
-SUMMARY_FORMAT = "kikuchipy-geomdic calibration summary"
-SUMMARY_VERSION = 1
 
 
 # --------------------------------------------------------------------- #
@@ -403,89 +385,6 @@ def import_geometry(record: Mapping[str, Any]) -> EBSDDetector:
 # --------------------------------------------------------------------- #
 
 
-def _atomic_path(path: Path):
-    """A temporary file beside *path* (same file system, so os.replace is
-    atomic), keeping the extension (numpy.savetxt looks at it), with the
-    permissions a new file gets (mkstemp's are owner-only)."""
-    fd, tmp = tempfile.mkstemp(
-        prefix=f".{path.name}.", suffix=path.suffix or ".tmp", dir=path.parent
-    )
-    os.close(fd)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
-    return Path(tmp)
-
-
-@contextlib.contextmanager
-def _atomic(path: str | Path):
-    """Yield a temporary path to write to; on success it replaces *path*
-    in one step, so a reader (or an interrupted run) sees the old file or
-    the complete new one, never a partial file."""
-    path = Path(path)
-    tmp = _atomic_path(path)
-    try:
-        yield tmp
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
-def atomic_write_text(path: str | Path, text: str) -> Path:
-    """Write *text* to *path* atomically: a reader (or an interrupted run)
-    sees the old file or the complete new one, never a partial file.
-
-    Parameters
-    ----------
-    path
-        File to write; its folder must exist.
-    text
-        Content (UTF-8).
-
-    Returns
-    -------
-    path
-    """
-    with _atomic(path) as tmp:
-        tmp.write_text(text, encoding="utf-8")
-    return Path(path)
-
-
-def csv_text(columns: Sequence[str], rows: Iterable[Sequence[Any]], digits: int = 12) -> str:
-    """Return rows as CSV text with a header line.
-
-    Parameters
-    ----------
-    columns
-        Column names.
-    rows
-        Rows of values in the order of *columns*.
-    digits
-        Significant digits of floats; other values are written with
-        ``str``.
-
-    Returns
-    -------
-    text
-        One line per row, each ending in a newline.
-
-    Examples
-    --------
-    >>> from kikuchipy_geomdic.io.conventions import csv_text
-    >>> print(csv_text(["step", "ncc", "accepted"], [(1, 0.123456789, True)], 4), end="")
-    step,ncc,accepted
-    1,0.1235,True
-    """
-    lines = [",".join(columns)]
-    for row in rows:
-        lines.append(
-            ",".join(
-                f"{v:.{digits}g}" if isinstance(v, (float, np.floating)) else str(v) for v in row
-            )
-        )
-    return "\n".join(lines) + "\n"
-
-
 def save_detector(detector: EBSDDetector, path: str | Path, convention: str = "bruker") -> Path:
     """Write a detector in kikuchipy's text format, exactly and atomically.
 
@@ -595,265 +494,3 @@ def load_detector(path: str | Path) -> EBSDDetector:
         raise ValueError(f"Detector file {str(path)!r} has non-finite PCs")
     det.azimuthal = _azimuthal_from(det.azimuthal, header.get("kikuchipy version"))
     return det
-
-
-# --------------------------------------------------------------------- #
-# Summaries
-# --------------------------------------------------------------------- #
-
-
-def _plain(value):
-    """JSON-ready copy: numpy to Python, NaN and inf to None."""
-    if isinstance(value, Mapping):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _plain(value.tolist())
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        v = float(value)
-        return v if math.isfinite(v) else None
-    if isinstance(value, Path):
-        return str(value)
-    return value
-
-
-def _versions() -> dict[str, str]:
-    from kikuchipy_geomdic._version import __version__
-
-    return {
-        "kikuchipy": kikuchipy.__version__,
-        "orix": orix.__version__,
-        "kikuchipy_geomdic": __version__,
-        "numpy": np.__version__,
-        "python": platform.python_version(),
-    }
-
-
-def _geometry_dict(geometry: MapGeometry) -> dict[str, Any]:
-    return {
-        **geometry.as_dict(),
-        "reference": list(geometry.reference),
-        "step_sizes": list(geometry.step_sizes),
-        "navigation_shape": list(geometry.navigation_shape),
-        "shape": list(geometry.shape),
-        "px_size": geometry.px_size,
-        "binning": geometry.binning,
-    }
-
-
-def summary_from_result(result, **inputs) -> dict[str, Any]:
-    """Return the JSON-ready summary of a calibration.
-
-    Parameters
-    ----------
-    result
-        :class:`~kikuchipy_geomdic.calibration.refinement.GeometryRefinementResult`.
-    **inputs
-        What was calibrated (file names, energy, ...), stored under
-        ``"inputs"``.
-
-    Returns
-    -------
-    summary
-        Dict with ``format``, ``format_version``, ``created``,
-        ``versions`` (kikuchipy, orix, kikuchipy-geomdic, ...),
-        ``geometry`` (Bruker PC at ``reference``, angles, step sizes in
-        um, shapes, pixel size, binning), ``start_geometry``,
-        ``conventions`` (one :func:`export_geometry` record per
-        convention), ``refined_parameters``, ``degenerate``,
-        ``converged``, ``calibration`` (points, NCC, displacement),
-        ``history`` and ``inputs``.
-
-    Examples
-    --------
-    >>> from kikuchipy_geomdic import refine_geometry_dic
-    >>> from kikuchipy_geomdic.validation import synthetic
-    >>> from kikuchipy_geomdic.io.conventions import summary_from_result
-    >>> sm = synthetic.synthetic_map("Si", (3, 3), shape=(40, 40), seed=0)
-    >>> res = refine_geometry_dic(
-    ...     sm.signal, sm.start_xmap, sm.start_detector, sm.master_pattern, 20,
-    ...     parameters=["pcx", "pcy", "pcz"], points=9, rois=(4, 4),
-    ...     max_iterations=1, show_progressbar=False,
-    ... )
-    >>> s = summary_from_result(res, energy=20)
-    >>> sorted(s["conventions"])
-    ['bruker', 'emsoft4', 'emsoft5', 'oxford', 'tsl']
-    """
-    geo = result.geometry
-    hist = result.history
-    scores = np.asarray(result.xmap.prop["scores"], dtype=float) if result.xmap.size else []
-    summary = {
-        "format": SUMMARY_FORMAT,
-        "format_version": SUMMARY_VERSION,
-        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "versions": _versions(),
-        "geometry": _geometry_dict(geo),
-        "start_geometry": _geometry_dict(result.start_geometry),
-        "conventions": {c: export_geometry(geo, c) for c in CONVENTIONS},
-        "refined_parameters": list(result.parameter_names),
-        "degenerate": list(result.degenerate),
-        "converged": bool(result.converged),
-        "calibration": {
-            "points": len(result.points),
-            "points_row_col": np.asarray(result.points).tolist(),
-            "mean_ncc": float(np.mean(scores)) if len(scores) else None,
-            "displacement_before": hist[0]["displacement_before"] if hist else None,
-            "displacement_after": (
-                [h for h in hist if h["accepted"]][-1]["displacement_after"]
-                if any(h["accepted"] for h in hist)
-                else (hist[0]["displacement_before"] if hist else None)
-            ),
-            "displacement_unit": "mean ROI displacement, fraction of the detector width",
-            "iterations": len(hist),
-        },
-        "history": list(hist),
-        "inputs": dict(inputs),
-    }
-    return _plain(summary)
-
-
-def write_summary(summary: Mapping[str, Any], path: str | Path) -> Path:
-    """Write a summary as indented JSON, atomically.
-
-    Parameters
-    ----------
-    summary
-        From :func:`summary_from_result`.
-    path
-        JSON file to write.
-
-    Returns
-    -------
-    path
-    """
-    text = json.dumps(_plain(summary), indent=2, allow_nan=False) + "\n"
-    return atomic_write_text(path, text)
-
-
-def read_summary(path: str | Path) -> dict[str, Any]:
-    """Read a summary written by :func:`write_summary`.
-
-    Parameters
-    ----------
-    path
-        JSON file.
-
-    Returns
-    -------
-    summary
-
-    Raises
-    ------
-    FileNotFoundError, ValueError
-        If the file is missing or is not such a summary.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"No summary file {str(path)!r}")
-    try:
-        summary = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise ValueError(f"{str(path)!r} is not a JSON file: {e}") from None
-    if not isinstance(summary, dict) or summary.get("format") != SUMMARY_FORMAT:
-        raise ValueError(f"{str(path)!r} is not a {SUMMARY_FORMAT}")
-    if int(summary.get("format_version", 0)) > SUMMARY_VERSION:
-        raise ValueError(
-            f"{str(path)!r} has summary format {summary['format_version']}; this "
-            f"version of kikuchipy-geomdic reads up to {SUMMARY_VERSION}"
-        )
-    return summary
-
-
-def geometry_from_summary(summary: Mapping[str, Any], convention: str = "bruker") -> MapGeometry:
-    """Rebuild the calibrated map geometry from a summary.
-
-    Parameters
-    ----------
-    summary
-        From :func:`read_summary` or :func:`summary_from_result`.
-    convention
-        Which of the summary's convention records to take the PC and the
-        angles from; all give the same geometry (that is what the
-        round-trip tests check).
-
-    Returns
-    -------
-    geometry
-        :class:`~kikuchipy_geomdic.geometry.MapGeometry`; its
-        ``detector()`` is the calibrated detector of the whole map.
-    """
-    conv = convention_name(convention)
-    try:
-        g = summary["geometry"]
-        record = summary["conventions"][conv]
-    except KeyError as e:
-        raise ValueError(f"The summary lacks {e}") from None
-    det = import_geometry(record)
-    return MapGeometry(
-        pc=det.pc.reshape(3),
-        shape=tuple(g["shape"]),
-        px_size=float(g["px_size"]),
-        binning=float(g["binning"]),
-        step_sizes=tuple(g["step_sizes"]),
-        navigation_shape=tuple(g["navigation_shape"]),
-        tilt=det.tilt,
-        azimuthal=det.azimuthal,
-        sample_tilt=det.sample_tilt,
-        twist=det.twist,
-        reference=tuple(g["reference"]),
-    )
-
-
-def format_summary(summary: Mapping[str, Any]) -> str:
-    """Return a human-readable table of a summary.
-
-    Parameters
-    ----------
-    summary
-        From :func:`summary_from_result`.
-
-    Returns
-    -------
-    text
-        Start and refined values of each parameter, the PC at the
-        reference map position in every convention, and the angles.
-    """
-    g, s = summary["geometry"], summary["start_geometry"]
-    refined = set(summary.get("refined_parameters", ()))
-    lines = [f"{'parameter':<13}{'start':>13}{'calibrated':>13}{'change':>13}  unit"]
-    for name in PARAMETERS:
-        unit = "deg" if name in _ANGLES else "PC (Bruker)"
-        d = 4 if unit == "deg" else 6
-        mark = "" if name in refined else "  (fixed)"
-        lines.append(
-            f"{name:<13}{s[name]:>13.{d}f}{g[name]:>13.{d}f}{g[name] - s[name]:>+13.{d}f}"
-            f"  {unit}{mark}"
-        )
-    lines.append(
-        f"{'tilt-s_tilt':<13}{s['tilt'] - s['sample_tilt']:>13.4f}"
-        f"{g['tilt'] - g['sample_tilt']:>13.4f}"
-        f"{(g['tilt'] - g['sample_tilt']) - (s['tilt'] - s['sample_tilt']):>+13.4f}  deg"
-    )
-    ref = ", ".join(f"{v:g}" for v in g["reference"])
-    lines.append("")
-    lines.append(
-        f"PC at map position (row, col) = ({ref}); detector {g['shape'][0]} x "
-        f"{g['shape'][1]} px, px_size {g['px_size']:g} um, binning {g['binning']:g}:"
-    )
-    for conv, rec in summary["conventions"].items():
-        names = ", ".join(rec["pc_names"])
-        vals = ", ".join(f"{v:.6f}" if abs(v) < 100 else f"{v:.2f}" for v in rec["pc"])
-        lines.append(f"  {conv:<8} ({names}) = ({vals})")
-    lines.append(
-        "Angles (deg, kikuchipy): "
-        + ", ".join(f"{a} {g[a]:.4f}" for a in ("tilt", "azimuthal", "sample_tilt", "twist"))
-    )
-    for d in summary.get("degenerate", []):
-        combo = " ".join(f"{c:+.2f} {n}" for n, c in d.items())
-        lines.append(f"Not determined by the data (minimum-norm split): {combo}")
-    return "\n".join(lines)

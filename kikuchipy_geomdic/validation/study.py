@@ -67,7 +67,7 @@ from kikuchipy_geomdic.calibration.refinement import calibration_points, refine_
 from kikuchipy_geomdic.calibration.solve import coupling_matrix
 from kikuchipy_geomdic.geometry import DEFAULT_PARAMETERS, DEFAULT_STEPS, MapGeometry
 from kikuchipy_geomdic.geometry.maps import flat_index
-from kikuchipy_geomdic.io.conventions import atomic_write_text, csv_text
+from kikuchipy_geomdic.io.files import atomic_write_text, csv_text
 from kikuchipy_geomdic.patterns import displacement as dsp
 from kikuchipy_geomdic.patterns.simulation import simulate_patterns
 from kikuchipy_geomdic.validation import synthetic

@@ -33,6 +33,7 @@ from orix.quaternion import Rotation
 
 from kikuchipy_geomdic import cli
 from kikuchipy_geomdic.io import conventions as cv
+from kikuchipy_geomdic.io import summary as su
 from kikuchipy_geomdic.validation import synthetic
 
 NAV = (4, 5)
@@ -325,7 +326,7 @@ def test_refine_writes_complete_results(refined):
     for name in cli.REFINE_OUTPUTS:
         if name.endswith(".png"):
             assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    summary = cv.read_summary(out / "summary.json")
+    summary = su.read_summary(out / "summary.json")
     rows = (out / "history.csv").read_text().strip().splitlines()
     assert len(rows) == 1 + len(summary["history"]) >= 2
     assert rows[0].startswith("iteration,accepted,damping,ncc_before")
@@ -336,7 +337,7 @@ def test_refine_writes_complete_results(refined):
 
 def test_refine_calibrates_towards_the_truth(refined, data):
     _, sm = data
-    summary = cv.read_summary(refined["out"] / "summary.json")
+    summary = su.read_summary(refined["out"] / "summary.json")
     true, start = sm.geometry.as_dict(), sm.start_geometry.as_dict()
     got = summary["geometry"]
     for k in ("pcx", "pcy", "pcz"):
@@ -347,7 +348,7 @@ def test_refine_calibrates_towards_the_truth(refined, data):
 
 def test_refine_detector_files_agree_in_every_convention(refined):
     out = refined["out"]
-    geo = cv.geometry_from_summary(cv.read_summary(out / "summary.json"))
+    geo = su.geometry_from_summary(su.read_summary(out / "summary.json"))
     whole = geo.detector()
     for name, conv in [
         ("detector.txt", "bruker"),
@@ -410,7 +411,7 @@ def test_refine_stored_orientations_and_pc_override(tmp_path, data, capsys):
         capsys,
     )
     assert code == 0, err
-    s = cv.read_summary(tmp_path / "o" / "summary.json")
+    s = su.read_summary(tmp_path / "o" / "summary.json")
     assert s["inputs"]["orientations"] == "pattern file"
     # TSL y* = 1 - Bruker PCy, z* = PCz for a square detector
     assert s["start_geometry"]["pcx"] == pytest.approx(0.52)
@@ -492,7 +493,7 @@ def test_unusable_points_excluded_from_calibration(tmp_path, data, capsys):
     assert code == 0, err
     assert "2 calibration candidate pattern(s) hold NaN or are blank" in err
     assert "only 15 usable point(s) for the 20 requested" in err
-    pts = cv.read_summary(tmp_path / "o" / "summary.json")["calibration"]["points_row_col"]
+    pts = su.read_summary(tmp_path / "o" / "summary.json")["calibration"]["points_row_col"]
     flat = {r * NAV[1] + c for r, c in pts}
     assert len(flat) == 15 and not flat & {0, 1, 2, 5, 19}
 
@@ -798,7 +799,7 @@ def test_interrupt_keeps_previous_results(tmp_path, data, refined, monkeypatch, 
         "kikuchipy_geomdic.calibration.refinement.refine_geometry_dic",
         lambda *a, **k: refined["result"],
     )
-    monkeypatch.setattr(cv, "write_summary", _interrupt_after(0, cv.write_summary))
+    monkeypatch.setattr(su, "write_summary", _interrupt_after(0, su.write_summary))
     code, _, _ = run(_refine_argv(d, out, "--overwrite"), capsys)
     assert code == 130
     assert digest(out) == before

@@ -1,8 +1,8 @@
 """Tests of :mod:`kikuchipy_geomdic.io.conventions`: convention-safe export.
 
 Every PC convention kikuchipy knows is exported and re-imported, as a
-record, as a detector file of kikuchipy's text format and through the JSON
-summary. The truths are kikuchipy's documented conversion examples, the
+record and as a detector file of kikuchipy's text format (the JSON summary:
+``test_summary.py``). The truths are kikuchipy's documented conversion examples, the
 way kikuchipy's vendor readers build a detector from vendor fields, and
 patterns simulated from the original detector.
 """
@@ -18,11 +18,9 @@ import pytest
 from kikuchipy.detectors import EBSDDetector
 from orix.quaternion import Rotation
 
-from kikuchipy_geomdic.calibration.refinement import refine_geometry_dic
 from kikuchipy_geomdic.geometry import MapGeometry
 from kikuchipy_geomdic.io import conventions as cv
 from kikuchipy_geomdic.patterns import simulation
-from kikuchipy_geomdic.validation import synthetic
 
 ROUND_TRIP_TOL = 1e-9
 ANGLES = ("tilt", "azimuthal", "twist", "sample_tilt")
@@ -272,63 +270,6 @@ def test_old_kikuchipy_detector_file_flips_azimuthal(tmp_path, geometry):
 
 
 # --------------------------------------------------------------------- #
-# The JSON summary
-# --------------------------------------------------------------------- #
-
-
-@pytest.fixture(scope="module")
-def result(si_mp):
-    sm = synthetic.synthetic_map(si_mp, (3, 4), shape=(60, 60), seed=2)
-    res = refine_geometry_dic(
-        sm.signal,
-        sm.start_xmap,
-        sm.start_detector,
-        sm.master_pattern,
-        sm.energy,
-        points=12,
-        rois=(6, 6),
-        max_iterations=1,
-        show_progressbar=False,
-    )
-    return res
-
-
-def test_summary_round_trip_every_convention(tmp_path, result):
-    summary = cv.summary_from_result(result, energy_kv=20.0)
-    path = cv.write_summary(summary, tmp_path / "summary.json")
-    back = cv.read_summary(path)
-    assert back["versions"]["kikuchipy"] == kikuchipy.__version__
-    assert back["inputs"] == {"energy_kv": 20.0}
-    assert back["refined_parameters"] == list(result.parameter_names)
-    assert len(back["history"]) == len(result.history)
-    for conv in cv.CONVENTIONS:
-        assert back["conventions"][conv]["convention"] == conv
-        geo = cv.geometry_from_summary(back, conv)
-        assert_same_detector(geo.detector(), result.detector)
-        for name, value in result.geometry.as_dict().items():
-            assert abs(geo.as_dict()[name] - value) <= ROUND_TRIP_TOL
-
-
-def test_summary_table_lists_every_convention(result):
-    summary = cv.summary_from_result(result)
-    text = cv.format_summary(summary)
-    for conv in cv.CONVENTIONS:
-        rec = summary["conventions"][conv]
-        assert f"  {conv:<8} ({', '.join(rec['pc_names'])})" in text
-    pcx = result.parameters["pcx"]
-    line = next(li for li in text.splitlines() if li.startswith("pcx"))
-    assert f"{pcx:.6f}" in line
-    assert "twist" in text and "(fixed)" in text
-
-
-def test_summary_is_strict_json_without_nan(tmp_path, result):
-    summary = cv.summary_from_result(result, odd=float("nan"))
-    path = cv.write_summary(summary, tmp_path / "s.json")
-    assert json.loads(path.read_text())["inputs"]["odd"] is None
-    assert "NaN" not in path.read_text()
-
-
-# --------------------------------------------------------------------- #
 # Errors
 # --------------------------------------------------------------------- #
 
@@ -341,11 +282,5 @@ def test_errors(tmp_path, geometry):
     (tmp_path / "other.txt").write_text("1 2 3\n")
     with pytest.raises(ValueError, match="not a kikuchipy detector file"):
         cv.load_detector(tmp_path / "other.txt")
-    (tmp_path / "other.json").write_text('{"a": 1}')
-    with pytest.raises(ValueError, match="calibration summary"):
-        cv.read_summary(tmp_path / "other.json")
-    (tmp_path / "bad.json").write_text("{")
-    with pytest.raises(ValueError, match="not a JSON file"):
-        cv.read_summary(tmp_path / "bad.json")
     with pytest.raises(ValueError, match="three finite"):
         cv.import_geometry({"convention": "bruker", "pc": [0.5, np.nan, 0.5], "shape": [60, 60]})
