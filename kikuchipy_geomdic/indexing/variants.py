@@ -23,6 +23,10 @@ point group count, so that polarity stays visible: for BaTiO3 (4mm, no
 inversion) they are the four rotations about c, which keep c, and
 ``+z`` and ``-z`` are different labels. A centrosymmetric group (4/mmm)
 holds the 180 deg operator itself and is refused.
+
+The quaternion arithmetic lives in ``_quaternions``.
+
+Layer 4 (indexing): may import geometry, io, patterns and indexing.
 """
 
 from __future__ import annotations
@@ -34,6 +38,8 @@ from pathlib import Path
 import numpy as np
 from orix.crystal_map import CrystalMap
 from orix.quaternion import Orientation, Rotation
+
+from kikuchipy_geomdic.indexing._quaternions import _closure, _conj, _qmul
 
 __all__ = [
     "VARIANT_NAMES",
@@ -86,9 +92,6 @@ PSEUDO_SYMMETRY_NAMES = ("BaTiO3",)
 #: further than this from it (modulo the pseudo-symmetry) do not enter it.
 TOLERANCE = 5.0
 
-# Largest group the operators and the crystal symmetry may generate (the
-# largest finite rotation group of a lattice, 432, has 24 elements)
-_MAX_GROUP = 120
 # Points per block of the label computation (bounded memory on big maps)
 _BLOCK = 65536
 # Points (evenly spread) the parent is chosen from on a larger map
@@ -406,11 +409,9 @@ def check_pseudo_symmetry(pseudo_symmetry_ops, symmetry) -> None:
 
     Parameters
     ----------
-    pseudo_symmetry_ops
-        Operators without the identity (anything
-        :func:`pseudo_symmetry_operators` takes).
-    symmetry
-        orix point group of the crystal (e.g. ``phase.point_group``).
+    pseudo_symmetry_ops, symmetry
+        The operators, as :func:`variant_names` takes them, and the orix
+        point group of the crystal (e.g. ``phase.point_group``).
 
     Raises
     ------
@@ -521,53 +522,6 @@ def _check_cosets(h: np.ndarray, ops: Rotation, symmetry) -> None:
                 f"{pg}: both give the same variant, so they are not pseudo-symmetries of this "
                 "crystal (BaTiO3's need its polar point group 4mm: 4/mmm cannot tell polarity)"
             )
-
-
-def _closure(q: np.ndarray) -> np.ndarray:
-    """The finite group the rotations *q* generate (quaternions mod sign)."""
-    group = _unique(q)
-    while True:
-        prod = _unique(_qmul(group[:, None, :], group[None, :, :]).reshape(-1, 4))
-        new = prod[~_member(prod, group)]
-        if not len(new):
-            return group
-        group = np.concatenate([group, new])
-        if len(group) > _MAX_GROUP:
-            raise ValueError(
-                "the pseudo-symmetry operators with the crystal symmetry generate more than "
-                f"{_MAX_GROUP} rotations: they are not the symmetries of a lattice"
-            )
-
-
-def _unique(q: np.ndarray) -> np.ndarray:
-    out: list[np.ndarray] = []
-    for x in q:
-        if not out or not (np.abs(np.asarray(out) @ x) > 1 - 1e-9).any():
-            out.append(x)
-    return np.asarray(out)
-
-
-def _member(q: np.ndarray, group: np.ndarray) -> np.ndarray:
-    return (np.abs(q @ group.T) > 1 - 1e-9).any(axis=1)
-
-
-def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton products of quaternions (..., 4) (broadcast)."""
-    a0, a1, a2, a3 = np.moveaxis(a, -1, 0)
-    b0, b1, b2, b3 = np.moveaxis(b, -1, 0)
-    return np.stack(
-        [
-            a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3,
-            a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
-            a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1,
-            a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0,
-        ],
-        axis=-1,
-    )
-
-
-def _conj(q: np.ndarray) -> np.ndarray:
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
 
 
 def _nearest(q: np.ndarray, ref: np.ndarray, group: np.ndarray):

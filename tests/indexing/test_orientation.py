@@ -14,6 +14,8 @@ from kikuchipy.detectors import EBSDDetector
 from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.indexing import orientation as ori
+from kikuchipy_geomdic.indexing._gauss_newton import _quat_step
+from kikuchipy_geomdic.indexing._lambert import _direction_cosines, _project
 from kikuchipy_geomdic.patterns.simulation import simulate_patterns
 from kikuchipy_geomdic.validation import synthetic
 
@@ -56,18 +58,18 @@ def test_projection_with_pc_per_pattern_and_batio3(bto_mp):
 
 def test_rotation_derivative_matches_central_differences(si_mp, det):
     arrays = ori.master_pattern_arrays(si_mp, 20)
-    dc = ori._direction_cosines(det.pc.reshape(3), det.nrows, det.ncols, ori.detector_matrix(det))
+    dc = _direction_cosines(det.pc.reshape(3), det.nrows, det.ncols, ori.detector_matrix(det))
     q = Rotation.random().data.reshape(4).astype(float)
     value = np.empty(dc.shape[0])
     jac = np.empty((dc.shape[0], 3))
-    ori._project(q, dc, arrays.upper, arrays.lower, arrays.scale, value, jac, True)
+    _project(q, dc, arrays.upper, arrays.lower, arrays.scale, value, jac, True)
     h = 1e-5
     for k in range(3):
         w = np.zeros(3)
         w[k] = h
         up, down = np.empty_like(value), np.empty_like(value)
-        ori._project(
-            ori._quat_step(w, q),
+        _project(
+            _quat_step(w, q),
             dc,
             arrays.upper,
             arrays.lower,
@@ -76,8 +78,8 @@ def test_rotation_derivative_matches_central_differences(si_mp, det):
             jac.copy(),
             False,
         )  # noqa: E501
-        ori._project(
-            ori._quat_step(-w, q),
+        _project(
+            _quat_step(-w, q),
             dc,
             arrays.upper,
             arrays.lower,

@@ -623,7 +623,7 @@ def test_isolated_variant_calls_are_flagged():
     gets converged = 0 (a biased polarity call is a scattered point);
     points with a neighbour of their domain, or too few trusted
     neighbours to judge, keep theirs."""
-    from kikuchipy_geomdic.indexing.reindex import _flag_isolated
+    from kikuchipy_geomdic.indexing._map_output import _flag_isolated
 
     dom = np.zeros((5, 6), dtype=np.int64)
     dom[:, 4:] = 2  # a domain two steps wide: kept

@@ -1,0 +1,137 @@
+"""The per-pattern Gauss-Newton kernel, compiled with numba: one
+orientation refined on a pattern's intensities (fit ``a * S(q) + b``,
+step by a small crystal rotation), and a stack of them.
+
+Layer 4 (indexing): may import geometry, io, patterns and indexing.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from kikuchipy_geomdic.indexing._lambert import _direction_cosines, _project
+
+
+@nb.njit(cache=True, nogil=True)
+def _quat_step(w, q):
+    """``exp(w) * q`` for a rotation vector *w* (radians)."""
+    angle = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    if angle < 1e-300:
+        return q.copy()
+    s = math.sin(angle / 2) / angle
+    a1, b1, c1, d1 = math.cos(angle / 2), w[0] * s, w[1] * s, w[2] * s
+    a2, b2, c2, d2 = q[0], q[1], q[2], q[3]
+    out = np.empty(4)
+    out[0] = a1 * a2 - b1 * b2 - c1 * c2 - d1 * d2
+    out[1] = a1 * b2 + b1 * a2 + c1 * d2 - d1 * c2
+    out[2] = a1 * c2 - b1 * d2 + c1 * a2 + d1 * b2
+    out[3] = a1 * d2 + b1 * c2 - c1 * b2 + d1 * a2
+    norm = math.sqrt(out[0] ** 2 + out[1] ** 2 + out[2] ** 2 + out[3] ** 2)
+    return out / norm
+
+
+@nb.njit(cache=True, nogil=True)
+def _gauss_newton(e, q, dc, upper, lower, scale, max_eval, tol, max_step):
+    """Refine one orientation; return (q, ncc, evaluations, converged)."""
+    n = e.size
+    value = np.empty(n)
+    jac = np.empty((n, 3))
+    em = e.mean()
+    ec = e - em
+    enorm = math.sqrt((ec * ec).sum())
+    q_best = q.copy()
+    ncc_best = -2.0
+    w = np.zeros(3)
+    halvings = 0
+    converged = False
+    evals = 0
+    a_mat = np.empty((5, 5))
+    rhs = np.empty(5)
+    while evals < max_eval:
+        _project(q, dc, upper, lower, scale, value, jac, True)
+        evals += 1
+        sm = value.mean()
+        sxx = 0.0
+        sxe = 0.0
+        for k in range(n):
+            t = value[k] - sm
+            sxx += t * t
+            sxe += t * ec[k]
+        ncc = sxe / math.sqrt(sxx) / enorm if sxx > 0 and enorm > 0 else 0.0
+        if ncc < ncc_best:
+            # The step overshot: go back and try half of it
+            halvings += 1
+            if halvings > 6:
+                converged = True  # the step left is far below tol
+                break
+            for i in range(3):
+                w[i] *= 0.5
+            q = _quat_step(w, q_best)
+            continue
+        halvings = 0
+        q_best = q
+        ncc_best = ncc
+        # Gain and offset at this orientation, then the 5 x 5 normal
+        # equations of (w, gain, offset) on the residual they leave
+        gain = sxe / sxx if sxx > 0 else 0.0
+        off = em - gain * sm
+        a_mat[:] = 0.0
+        rhs[:] = 0.0
+        col = np.empty(5)
+        for k in range(n):
+            col[0] = gain * jac[k, 0]
+            col[1] = gain * jac[k, 1]
+            col[2] = gain * jac[k, 2]
+            col[3] = value[k]
+            col[4] = 1.0
+            r = e[k] - gain * value[k] - off
+            for i in range(5):
+                rhs[i] += col[i] * r
+                for j in range(i, 5):
+                    a_mat[i, j] += col[i] * col[j]
+        for i in range(5):
+            for j in range(i):
+                a_mat[i, j] = a_mat[j, i]
+        # Tiny Levenberg term: a flat pattern must not give a huge step
+        for i in range(3):
+            a_mat[i, i] *= 1.0 + 1e-9
+            a_mat[i, i] += 1e-12
+        x = np.linalg.solve(a_mat, rhs)
+        step = math.sqrt(x[0] ** 2 + x[1] ** 2 + x[2] ** 2)
+        shrink = 1.0 if step <= max_step else max_step / step
+        for i in range(3):
+            w[i] = x[i] * shrink
+        if step < tol:
+            converged = True
+            break
+        q = _quat_step(w, q_best)
+    return q_best, ncc_best, evals, converged
+
+
+@nb.njit(cache=True, nogil=True)
+def _refine_stack(
+    patterns, quats, pcs, nrows, ncols, om, upper, lower, scale, max_eval, tol, step
+):
+    n = patterns.shape[0]
+    q_out = np.empty((n, 4))
+    ncc = np.empty(n)
+    evals = np.zeros(n, dtype=np.int64)
+    conv = np.zeros(n, dtype=np.bool_)
+    for p in range(n):
+        dc = _direction_cosines(pcs[p], nrows, ncols, om)
+        e = patterns[p].astype(np.float64)
+        if not np.isfinite(e).all():
+            q_out[p] = quats[p]
+            ncc[p] = np.nan
+            continue
+        q, c, k, ok = _gauss_newton(
+            e, quats[p].copy(), dc, upper, lower, scale, max_eval, tol, step
+        )
+        q_out[p] = q
+        ncc[p] = c
+        evals[p] = k
+        conv[p] = ok
+    return q_out, ncc, evals, conv

@@ -1,0 +1,139 @@
+"""The reseeding stage of
+:func:`~kikuchipy_geomdic.indexing.reindex.refine_map`: the points of a
+map that score poorly for where they are
+(:func:`~kikuchipy_geomdic.indexing.orientation.poor_points`) refined
+again from their neighbours' distinct orientations, a result kept only
+where it scores better.
+
+Layer 4 (indexing): may import geometry, io, patterns and indexing.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from orix.quaternion import Rotation
+
+from kikuchipy_geomdic.indexing._point_refinement import (
+    _EVALS,
+    _Q,
+    _SCORE,
+    _VARIANT,
+    _refine_points,
+)
+from kikuchipy_geomdic.indexing._quaternions import _qmul
+from kikuchipy_geomdic.indexing._seeds import neighbour_seeds, poor_points
+
+
+def _proper_symmetry(master_pattern) -> np.ndarray:
+    """Quaternions (S, 4) of the proper point group of the master pattern's
+    phase (the identity alone for bare arrays)."""
+    phase = getattr(master_pattern, "phase", None)
+    if phase is None:
+        return np.array([[1.0, 0.0, 0.0, 0.0]])
+    pg = phase.point_group
+    return np.asarray(Rotation(pg.proper_subgroup).flatten().data, dtype=np.float64)
+
+
+def _equivalents(ops, sym) -> np.ndarray:
+    """Quaternions (E, 4) of every ``s * op`` (s a symmetry, op the identity
+    or a pseudo-symmetry operator): what makes two orientations the same
+    candidate set."""
+    ident = np.array([[1.0, 0.0, 0.0, 0.0]])
+    ops_all = ident if ops is None else np.concatenate([ident, ops])
+    return _qmul(sym[:, None, :], ops_all[None, :, :]).reshape(-1, 4)
+
+
+def _distinct(seeds: np.ndarray, equivalents: np.ndarray, min_angle: float = 1.0) -> np.ndarray:
+    """The seeds (k, 4) whose candidate sets differ: a seed that is an
+    equivalent (symmetry times variant) of an earlier one within
+    *min_angle* degrees adds nothing, as its variants are refined anyway."""
+    cos_half = np.cos(np.deg2rad(min_angle) / 2)
+    kept: list[np.ndarray] = []
+    for q in seeds:
+        if kept:
+            eq = _qmul(equivalents, q[None, :])
+            if (np.abs(eq @ np.array(kept).T) >= cos_half).any():
+                continue
+        kept.append(q)
+    return np.array(kept).reshape(-1, 4)
+
+
+def _relabel(q, start, ops, sym) -> np.ndarray:
+    """Variant index (0: the start's, k: ``ops[k - 1]`` applied) of each
+    orientation *q* (n, 4) relative to its *start* (n, 4): the variant of
+    the start nearest to it, the crystal's symmetry allowed."""
+    ident = np.array([[1.0, 0.0, 0.0, 0.0]])
+    ops_all = np.concatenate([ident, ops])
+    targets = _qmul(ops_all[None, :, :], start[:, None, :])  # (n, K, 4)
+    eq = _qmul(sym[None, :, :], q[:, None, :])  # (n, S, 4)
+    cos = np.abs(np.einsum("nkq,nsq->nks", targets, eq)).max(axis=2)
+    return cos.argmax(axis=1)
+
+
+#: Most passes of reseeding: a point fixed in one pass seeds its poor
+#: neighbours in the next (runs of misindexed points).
+RESEED_PASSES = 4
+
+
+def _reseed(d, out, todo, pcs, nav, options, start, sym) -> np.ndarray:
+    """Refine poor points again from their neighbours' orientations,
+    in place in *out*; return which points a neighbour's seed improved.
+
+    A seed's result replaces the point's own only where it scores better
+    on the point's own pattern, so reseeding never lowers a score. Seeds
+    are the neighbours' refined orientations as they are (each refined
+    with all its variants when there are operators), never averages;
+    seeds that are symmetry or variant equivalents of one another are
+    refined once. A replaced point's ``variant`` is relabelled relative to
+    its own *start*."""
+    rows, cols = nav
+    ops = options["ops"]
+    equivalents = _equivalents(ops, sym)
+    reseeded = np.zeros(rows * cols, dtype=bool)
+    valid = todo.reshape(nav) & np.isfinite(out[:, _SCORE]).reshape(nav)
+    tried: dict[int, list[np.ndarray]] = {}
+    for _ in range(RESEED_PASSES):
+        poor = poor_points(out[:, _SCORE].reshape(nav), valid)
+        if not poor.any():
+            break
+        q_map = out[:, _Q].reshape(rows, cols, 4)
+        points, seeds = [], []
+        for p in np.argwhere(poor):
+            f = int(p[0] * cols + p[1])
+            s = _distinct(neighbour_seeds(q_map, tuple(p), valid & ~poor), equivalents)
+            # A seed refined in an earlier pass gives the same result again
+            done = tried.setdefault(f, [])
+            if done and len(s):
+                old = np.concatenate(done)
+                s = np.array([q for q in s if not _seen(q, old, equivalents)]).reshape(-1, 4)
+            if len(s):
+                points.append(p)
+                seeds.append(s)
+                done.append(s)
+        if not points:
+            break
+        points = np.array(points)
+        patterns = np.asarray(d.vindex[points[:, 0], points[:, 1]].compute())
+        counts = [len(s) for s in seeds]
+        idx = np.repeat(np.arange(len(points)), counts)
+        flat = points[:, 0] * cols + points[:, 1]
+        trial = _refine_points(patterns[idx], np.concatenate(seeds), pcs[flat[idx]], **options)
+        changed = False
+        for i, f in enumerate(flat):
+            mine = trial[idx == i]
+            best = mine[np.nanargmax(mine[:, _SCORE])]
+            spent = out[f, _EVALS] + mine[:, _EVALS].sum()
+            if best[_SCORE] > out[f, _SCORE]:
+                out[f] = best
+                if ops is not None:
+                    out[f, _VARIANT] = _relabel(best[None, _Q], start[None, f], ops, sym)[0]
+                reseeded[f] = changed = True
+            out[f, _EVALS] = spent
+        if not changed:
+            break
+    return reseeded
+
+
+def _seen(q, old, equivalents, min_angle: float = 1.0) -> bool:
+    cos_half = np.cos(np.deg2rad(min_angle) / 2)
+    return bool((np.abs(_qmul(equivalents, q[None, :]) @ old.T) >= cos_half).any())
