@@ -6,7 +6,7 @@ patterns can scatter less than the Cramer-Rao bound of those patterns.
 and orientations, from the patterns themselves, so that a calibration's
 standard errors can be judged against what the data could give at best
 (:meth:`CramerRaoBound.table`, or
-:meth:`~kikuchipy_geomdic.calibration.refinement.GeometryRefinementResult.compare_bound`).
+:meth:`~kikuchipy_geomdic.calibration.result.GeometryRefinementResult.compare_bound`).
 
 The model
 ---------
@@ -55,8 +55,9 @@ from kikuchipy.signals import EBSD, EBSDMasterPattern
 from orix.crystal_map import CrystalMap
 from orix.quaternion import Rotation
 
+from kikuchipy_geomdic.calibration._points import _map_points, calibration_points
+from kikuchipy_geomdic.calibration._uncertainty import TILT_DIFFERENCE
 from kikuchipy_geomdic.calibration.jacobian import INTENSITY_STEPS, intensity_jacobian
-from kikuchipy_geomdic.calibration.refinement import TILT_DIFFERENCE, calibration_points
 from kikuchipy_geomdic.geometry import (
     DEFAULT_PARAMETERS,
     UNITS,
@@ -403,16 +404,7 @@ def _check_points(points, nav: tuple[int, int]) -> np.ndarray:
     if points is None:
         rows, cols = np.indices(nav)
         return np.stack([rows.ravel(), cols.ravel()], axis=1)
-    pts = np.asarray(points)
-    if pts.ndim != 2 or pts.shape[1] != 2 or not np.issubdtype(pts.dtype, np.integer):
-        raise ValueError("points must be an (N, 2) integer array of (row, col)")
-    outside = (pts < 0).any(axis=1) | (pts[:, 0] >= nav[0]) | (pts[:, 1] >= nav[1])
-    if outside.any():
-        raise ValueError(
-            f"{outside.sum()} point(s) lie outside the map of shape {nav}, e.g. "
-            f"{pts[outside][0].tolist()}"
-        )
-    return pts
+    return _map_points(points, nav)
 
 
 def _rotations(rotations, pts: np.ndarray, nav: tuple[int, int]) -> Rotation:

@@ -314,10 +314,8 @@ def intensity_jacobian(
 
     Parameters
     ----------
-    geometry
-        Current geometry.
-    points
-        Map positions (N, 2).
+    geometry, points
+        As in :func:`parameter_derivatives`.
     rotations
         Orientations (N,) (orix rotations or quaternions (N, 4)).
     arrays
@@ -339,7 +337,6 @@ def intensity_jacobian(
 
     Examples
     --------
-    >>> import numpy as np
     >>> from orix.quaternion import Rotation
     >>> from kikuchipy_geomdic.validation import synthetic
     >>> from kikuchipy_geomdic.geometry import MapGeometry

@@ -95,7 +95,7 @@ def summary_from_result(result, **inputs) -> dict[str, Any]:
     Parameters
     ----------
     result
-        :class:`~kikuchipy_geomdic.calibration.refinement.GeometryRefinementResult`.
+        :class:`~kikuchipy_geomdic.calibration.result.GeometryRefinementResult`.
     **inputs
         What was calibrated (file names, energy, ...), stored under
         ``"inputs"``.

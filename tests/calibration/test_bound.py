@@ -10,7 +10,7 @@ from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.calibration.bound import CramerRaoBound, cramer_rao_bound
 from kikuchipy_geomdic.calibration.jacobian import parameter_derivatives
-from kikuchipy_geomdic.calibration.refinement import GeometryRefinementResult
+from kikuchipy_geomdic.calibration.result import GeometryRefinementResult
 from kikuchipy_geomdic.geometry import copy_detector, rotations_from_vectors
 from kikuchipy_geomdic.patterns.simulation import simulate_patterns
 from kikuchipy_geomdic.validation import synthetic

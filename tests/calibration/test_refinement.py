@@ -297,7 +297,7 @@ def test_processing_is_estimated(blurred, blurred_results, realistic, realistic_
     # background removal (a high-pass of width / 8) and the map-mean
     # static background (the ghost) on the realistic one, whose static
     # background gives the lobe
-    from kikuchipy_geomdic.calibration.refinement import _estimate_processing, _lobe
+    from kikuchipy_geomdic.calibration._processing import _estimate_processing, _lobe
     from kikuchipy_geomdic.indexing.orientation import master_pattern_arrays
 
     for sm, res, highpass, ghost in (
@@ -370,15 +370,15 @@ def test_inconsistent_full_field_inflates_its_errors(blurred, blurred_results, m
     # moved by 2e-3 on standard errors of 3e-5) is caught by the DIC
     # stage's step from it, reported, and its standard errors inflated to
     # cover the disagreement
-    from kikuchipy_geomdic.calibration import refinement
+    from kikuchipy_geomdic.calibration import _full_field as stage
 
-    real = refinement._full_field
+    real = stage._full_field
 
     def biased(*args, **kwargs):
         ff = real(*args, **kwargs)
         return replace(ff, geometry=ff.geometry.updated({"pcz": 2e-3}))
 
-    monkeypatch.setattr(refinement, "_full_field", biased)
+    monkeypatch.setattr(stage, "_full_field", biased)
     kw = dict(points=49, parameters=["pcx", "pcy", "pcz"])
     with pytest.warns(UserWarning, match="full field and DIC stage disagree"):
         res = _refine(blurred, **kw)

@@ -1,0 +1,285 @@
+"""The problem and the state of a refinement: everything that stays fixed
+(:class:`_Problem`, made by :func:`_prepare_problem`), where a loop stands
+(:class:`_State`), what it returns (:class:`_LoopOutcome`) and its history
+records (:func:`_step_record`).
+
+Layer 6 (calibration): may import geometry, io, patterns, indexing, plotting
+and calibration.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+from kikuchipy.signals import EBSD, EBSDMasterPattern
+from orix.crystal_map import CrystalMap
+from orix.quaternion import Rotation
+
+from kikuchipy_geomdic.calibration._checks import _check_steps
+from kikuchipy_geomdic.calibration._points import _experimental, _select_points
+from kikuchipy_geomdic.calibration._processing import _lobe
+from kikuchipy_geomdic.calibration.jacobian import analytic_jacobian, finite_difference_jacobian
+from kikuchipy_geomdic.geometry import MapGeometry, rotation_vectors
+from kikuchipy_geomdic.geometry.maps import flat_index
+from kikuchipy_geomdic.indexing import orientation as ori
+from kikuchipy_geomdic.indexing.reindex import refine_orientations
+from kikuchipy_geomdic.patterns import displacement as dsp
+
+#: Paper solver: smallest side (px) the patterns are binned down to for
+#: the orientation refinements inside the loop. Orientations refined from
+#: 60 px patterns were as precise (0.0025 deg) as from 120 px ones
+#: (0.0022 deg) at a quarter of the cost.
+LOOP_MIN_SIZE = 60
+
+
+@dataclass(frozen=True)
+class _Problem:
+    """Everything that stays fixed during a refinement."""
+
+    experimental: np.ndarray
+    points: np.ndarray
+    start_rotations: Rotation
+    master_pattern: EBSDMasterPattern
+    energy: float
+    phase: Any
+    parameters: tuple[str, ...]
+    steps: dict[str, float]
+    dic_kwargs: dict
+    refine_kwargs: dict
+    pseudo_symmetry_ops: Rotation | None = None
+    #: The smoothed static background (mean 1), if the signal has one
+    lobe: np.ndarray | None = None
+
+    @cached_property
+    def arrays(self) -> ori.MasterPatternArrays:
+        """The master pattern's hemispheres at the energy, for projection."""
+        return ori.master_pattern_arrays(self.master_pattern, self.energy)
+
+    def simulate(self, geometry: MapGeometry, rotations: Rotation) -> np.ndarray:
+        """Patterns (N, rows, columns), float64, as kikuchipy's
+        ``get_patterns`` projects them, by this package's compiled
+        kernel (a quarter of kikuchipy's time on 100 patterns)."""
+        return ori.project_patterns(rotations, geometry.detector(self.points), self.arrays)
+
+    def compare(
+        self, geometry: MapGeometry, rotations: Rotation
+    ) -> tuple[dsp.DisplacementField, np.ndarray]:
+        """Displacement field and NCC (N,) of the patterns simulated at
+        *geometry* against the experimental ones, from one simulation."""
+        sim = self.simulate(geometry, rotations).astype(np.float32)
+        field = dsp.measure_displacements(sim, self.experimental, **self.dic_kwargs)
+        return field, _ncc(sim, self.experimental)
+
+    def measure(self, geometry: MapGeometry, rotations: Rotation) -> dsp.DisplacementField:
+        return self.compare(geometry, rotations)[0]
+
+    def ncc(self, geometry: MapGeometry, rotations: Rotation) -> np.ndarray:
+        """NCC (N,) of the patterns simulated at *geometry* with the
+        experimental ones, full resolution."""
+        return _ncc(self.simulate(geometry, rotations).astype(np.float32), self.experimental)
+
+    def refine_orientations(
+        self, geometry: MapGeometry, rotations: Rotation, binning: int | None = None
+    ) -> tuple[Rotation, np.ndarray]:
+        """Refine orientations with kikuchipy, on patterns binned by
+        *binning* (default :attr:`loop_binning`)."""
+        kw = dict(self.refine_kwargs)
+        if self.pseudo_symmetry_ops is not None:
+            kw["pseudo_symmetry_ops"] = self.pseudo_symmetry_ops
+        ref = refine_orientations(
+            self.experimental,
+            rotations,
+            geometry.detector(self.points),
+            self.master_pattern,
+            self.energy,
+            self.phase,
+            self.loop_binning if binning is None else binning,
+            **kw,
+        )
+        return ref.rotations, ref.scores
+
+    @property
+    def loop_binning(self) -> int:
+        """Binning of the orientation refinements inside the paper's loop
+        (:func:`_binning`); the final orientations use full resolution."""
+        return _binning(self.experimental.shape[1:])
+
+    def operators(self) -> Rotation:
+        """Identity followed by the pseudo-symmetry operators."""
+        ops = Rotation.identity(1)
+        if self.pseudo_symmetry_ops is not None:
+            ops = Rotation(np.concatenate([ops.data, self.pseudo_symmetry_ops.flatten().data]))
+        return ops
+
+    def variants(self, rotations: Rotation) -> tuple[np.ndarray, Rotation]:
+        """Return, per point, the pseudo-symmetry operator (0: none) that
+        brings the start closest to *rotations*, and the remaining
+        deviation ``~(op * start) * rotation`` (a sample-frame rotation)."""
+        ops_all = self.operators()
+        angles = np.stack(
+            [(~(op * self.start_rotations) * rotations).angle for op in ops_all], axis=1
+        )
+        k = np.argmin(angles, axis=1)
+        return k, ~(ops_all[k] * self.start_rotations) * rotations
+
+    def rotation_offsets(self, rotations: Rotation) -> np.ndarray:
+        """Rotation vectors (N, 3) of *rotations* away from the start (its
+        closest variant): the offsets of the orientation prior."""
+        return rotation_vectors(self.variants(rotations)[1])
+
+    def best_variants(self, geometry: MapGeometry, rotations: Rotation) -> Rotation:
+        """Return per point the variant ``op * rotation`` its pattern shows.
+
+        Each candidate is first refined at *geometry* (Gauss-Newton on the
+        intensities, :mod:`~kikuchipy_geomdic.indexing.orientation`), then compared
+        by :func:`~kikuchipy_geomdic.indexing.orientation.compare_variants`:
+        unrefined, a right variant a few tenths of a degree off lost to a
+        wrong one refined by the loop (measured with the de-ebsd BaTiO3
+        master pattern: 6 of 36 points kept a wrong variant)."""
+        ops = self.operators()
+        if ops.size == 1:
+            return rotations
+        m, n = ops.size, rotations.size
+        det = geometry.detector(self.points)
+        pcs = det.pc.reshape(-1, 3)
+        pcs = np.repeat(pcs, n, axis=0) if pcs.shape[0] == 1 else pcs
+        om = ori.detector_matrix(det)
+        arrays = self.arrays
+        candidates = np.stack([(op * rotations).data.reshape(-1, 4) for op in ops], axis=1)
+        refined = ori.refine_arrays(
+            np.repeat(self.experimental, m, axis=0),
+            candidates.reshape(-1, 4),
+            np.repeat(pcs, m, axis=0),
+            om,
+            arrays,
+            levels=(1,),
+        )
+        rq = refined.rotations.data.reshape(n, m, 4)
+        k = ori.compare_variants(self.experimental, rq, pcs, om, arrays).variant
+        return ops[k] * rotations
+
+    def jacobian(
+        self, geometry: MapGeometry, rotations: Rotation, field0: dsp.DisplacementField, kind: str
+    ) -> np.ndarray:
+        if kind == "finite-difference":
+            return finite_difference_jacobian(
+                lambda g: self.measure(g, rotations).residual,
+                geometry,
+                self.parameters,
+                self.steps,
+            )
+        return analytic_jacobian(
+            geometry, self.points, field0.positions, field0.counts, self.parameters, self.steps
+        )
+
+
+def _binning(shape: tuple[int, int]) -> int:
+    """The largest factor dividing the pattern *shape* that keeps at least
+    :data:`LOOP_MIN_SIZE` px a side."""
+    ny, nx = shape
+    b = 1
+    for f in range(2, min(ny, nx) // LOOP_MIN_SIZE + 1):
+        if ny % f == 0 and nx % f == 0:
+            b = f
+    return b
+
+
+def _ncc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    a = np.asarray(a, dtype=np.float64).reshape(len(a), -1)
+    b = np.asarray(b, dtype=np.float64).reshape(len(b), -1)
+    a = a - a.mean(axis=1, keepdims=True)
+    b = b - b.mean(axis=1, keepdims=True)
+    return (a * b).sum(axis=1) / np.sqrt((a * a).sum(axis=1) * (b * b).sum(axis=1))
+
+
+@dataclass(frozen=True)
+class _State:
+    """A geometry and orientations, with the displacement field and the
+    NCC (N,) of the patterns simulated there against the experimental ones."""
+
+    geometry: MapGeometry
+    rotations: Rotation
+    field: dsp.DisplacementField
+    scores: np.ndarray
+
+    @classmethod
+    def measure(cls, problem: _Problem, geometry: MapGeometry, rotations: Rotation) -> _State:
+        """The state at *geometry* and *rotations*, from one simulation."""
+        fld, scores = problem.compare(geometry, rotations)
+        return cls(geometry=geometry, rotations=rotations, field=fld, scores=scores)
+
+
+@dataclass(frozen=True)
+class _LoopOutcome:
+    """What a loop returns: the final state, one history record per trial
+    step, whether it converged and the field at the start."""
+
+    state: _State
+    history: list[dict[str, Any]]
+    converged: bool
+    field_before: dsp.DisplacementField
+
+
+def _step_record(
+    it, names, geometry, ncc_before, ncc_after, before, after, damping, accepted, **extra
+) -> dict[str, Any]:
+    """One entry of :attr:`GeometryRefinementResult.history`."""
+    return dict(
+        iteration=it,
+        parameters=dict(zip(names, map(float, geometry.values(names)))),
+        ncc_before=ncc_before,
+        ncc_after=ncc_after,
+        displacement_before=before,
+        displacement_after=after,
+        damping=damping,
+        accepted=accepted,
+        **extra,
+    )
+
+
+def _prepare_problem(
+    signal: EBSD,
+    xmap: CrystalMap,
+    master_pattern: EBSDMasterPattern,
+    energy: float,
+    names: tuple[str, ...],
+    points,
+    phase_id: int,
+    nav: tuple[int, int],
+    steps: Mapping[str, float] | None,
+    dic_kwargs: dict,
+    refine_kwargs: Mapping[str, Any] | None,
+    pseudo_symmetry_ops: Rotation | None,
+) -> _Problem:
+    """Check the steps, select the points, read their patterns and
+    starting orientations: the :class:`_Problem` the loops solve."""
+    steps = _check_steps(names, steps)
+    ref_kw = dict(refine_kwargs or {})
+    ops = ref_kw.pop("pseudo_symmetry_ops", None)
+    if pseudo_symmetry_ops is not None:
+        ops = pseudo_symmetry_ops
+    pts = _select_points(points, xmap, phase_id, nav, names)
+    exp = _experimental(signal, pts, nav)
+    lookup = np.full(nav[0] * nav[1], -1)
+    lookup[xmap.id] = np.arange(xmap.size)
+    return _Problem(
+        experimental=exp,
+        points=pts,
+        start_rotations=Rotation(xmap.rotations.data[lookup[flat_index(pts, nav)]]),
+        master_pattern=master_pattern,
+        energy=float(energy),
+        # The master pattern's phase, checked to match xmap's: kikuchipy
+        # refuses phases whose atom lists differ in order (as after a
+        # round trip through an h5ebsd file)
+        phase=master_pattern.phase.deepcopy(),
+        parameters=names,
+        steps=steps,
+        dic_kwargs=dic_kwargs,
+        refine_kwargs=ref_kw,
+        pseudo_symmetry_ops=None if ops is None else Rotation(ops).flatten(),
+        lobe=_lobe(signal),
+    )

@@ -1,0 +1,243 @@
+"""What was done to the patterns: the full field's model of how a camera
+recorded them and a user processed them (:class:`_Processing`), estimated
+from the patterns themselves (:func:`_estimate_processing`), and the
+background lobe of the signal's static background (:func:`_lobe`).
+
+Layer 6 (calibration): may import geometry, io, patterns, indexing, plotting
+and calibration.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field, replace
+from functools import cached_property
+
+import numpy as np
+from kikuchipy.signals import EBSD
+from scipy import ndimage
+
+from kikuchipy_geomdic.indexing import orientation as ori
+
+#: Range and grid (px) of the search for the detector's point spread.
+PSF_MAX = 3.0
+PSF_STEP = 0.25
+
+#: A Gaussian blur narrower than this (px) is left out: its weight on a
+#: neighbouring pixel is below 3e-4.
+PSF_NEGLIGIBLE = 0.25
+
+#: Singular values of the low-pass matrices kept, relative to the largest.
+LOWPASS_RANK_TOLERANCE = 1e-4
+
+#: High-passes (fractions of the pattern width) the full field tries as
+#: the model of the user's dynamic background removal (kikuchipy's
+#: default: a width / 8), keeping the one whose model correlates best
+#: with the patterns; 0: none.
+HIGHPASS_GRID = (0.0, 1 / 12, 1 / 8, 1 / 6)
+
+#: Patterns (at most) on which the full field chooses its high-pass and
+#: point spread.
+ESTIMATION_PATTERNS = 40
+
+#: Kikuchi contrasts (relative to the background) the full field tries.
+CONTRAST_GRID = (0.0, 0.05, 0.1, 0.15, 0.2, 0.3)
+
+
+def _lobe(signal: EBSD) -> np.ndarray | None:
+    """The background lobe, mean 1: a Gaussian fitted to the signal's
+    static background (kikuchipy's ``EBSD.static_background``; its
+    logarithm, quadratic in x and y, by least squares); None without one.
+    A map-mean background holds faint bands, which the fit averages out
+    where smoothing kept a part (a Gaussian smoothing of an eighth of the
+    width left pcz 0.45e-4 off at 20,000 counts/px, the fit 0.24e-4)."""
+    bg = getattr(signal, "static_background", None)
+    shape = tuple(signal.axes_manager.signal_shape[::-1])
+    if bg is None or tuple(np.shape(bg)) != shape:
+        return None
+    bg = np.asarray(bg.compute() if hasattr(bg, "compute") else bg, dtype=np.float64)
+    if not np.isfinite(bg).all() or bg.min() <= 0:
+        return None
+    y, x = (np.indices(shape).reshape(2, -1) + 0.5) / shape[1]
+    basis = np.stack([np.ones_like(x), x, y, x * x, x * y, y * y], axis=1)
+    coef, *_ = np.linalg.lstsq(basis, np.log(bg.ravel()), rcond=None)
+    lobe = np.exp(basis @ coef).reshape(shape)
+    return lobe / lobe.mean()
+
+
+def _gaussian_matrix(n: int, sigma: float) -> np.ndarray:
+    """The (n, n) matrix of a 1D Gaussian filter of *sigma* px with
+    edge-replicating borders (scipy's ``mode="nearest"``)."""
+    if sigma <= 0:
+        return np.eye(n)
+    return ndimage.gaussian_filter1d(np.eye(n), sigma, axis=0, mode="nearest")
+
+
+@functools.lru_cache(maxsize=16)
+def _lowpass_factors(n: int, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """Low-rank factors ``A @ B`` of the (n, n) Gaussian low-pass matrix:
+    at a sigma of an eighth of the width, 13 of 96 singular values are
+    above 1e-4, so thin products replace square ones."""
+    u, sv, vt = np.linalg.svd(_gaussian_matrix(n, sigma))
+    k = int((sv > LOWPASS_RANK_TOLERANCE * sv[0]).sum())
+    return u[:, :k], sv[:k, None] * vt[:k]
+
+
+@dataclass(frozen=True)
+class _Processing:
+    """The full field's model of how the compared patterns were made from
+    the simulation ``S``, as a camera records and a user processes them:
+
+    1. ``x = L * (1 + contrast * K)``: ``K`` the pattern standardised, a
+       Kikuchi *contrast* on the background *lobe* ``L`` (the smoothed
+       static background; flat when unknown);
+    2. the detector's point spread, a Gaussian of *psf* px, acting on the
+       product: blurring a pattern on a sloping background moves its
+       features down the slope, a magnification about the lobe's peak
+       that pcz absorbs (measured: 1e-4 on 96 px Ni patterns with a blur
+       of 0.6 px);
+    3. static background removal: divided by the blurred lobe, and with
+       *ghost* by the map's mean pattern, bands and all (kikuchipy's
+       static background removal with the map's own mean holds bands on a
+       map of few grains);
+    4. dynamic background removal: divided by its Gaussian low-pass of
+       *highpass* px (0: none).
+
+    A *contrast* of 0 is the limit of a faint pattern, where the
+    divisions become subtractions. Every step is differentiable, so
+    Jacobian columns go through it with the pattern. Fitted as
+    ``a * S + b`` instead (the model family of
+    ``synthetic.degrade_patterns``), processed Ni patterns moved pcz by 5
+    standard errors."""
+
+    shape: tuple[int, int]
+    psf: float = 0.0
+    highpass: float = 0.0
+    contrast: float = 0.0
+    ghost: bool = False
+    lobe: np.ndarray | None = field(default=None, compare=False, repr=False)
+
+    @cached_property
+    def _lowpass_factors(self) -> tuple[np.ndarray, ...]:
+        (ar, br), (ac, bc) = (_lowpass_factors(n, self.highpass) for n in self.shape)
+        # Columns act from the right, transposed; all contiguous (BLAS was
+        # 40x slower with a transposed view)
+        return tuple(np.ascontiguousarray(m) for m in (ar, br, bc.T, ac.T))
+
+    def _planes(self, a: np.ndarray, dtype=np.float64) -> np.ndarray:
+        # (N, P, K) -> contiguous pattern planes (N, K, rows, columns):
+        # matmul over strided ones was 100x slower
+        n, k = a.shape[0], int(np.prod(a.shape[2:], dtype=int))
+        planes = np.moveaxis(a.reshape((n,) + self.shape + (k,)), 3, 1)
+        return np.ascontiguousarray(planes, dtype=dtype)
+
+    def _flat(self, planes: np.ndarray, shape) -> np.ndarray:
+        return np.ascontiguousarray(np.moveaxis(planes, 1, 3), dtype=np.float64).reshape(shape)
+
+    def _lowpass(self, planes: np.ndarray) -> np.ndarray:
+        ar, br, bct, act = (m.astype(planes.dtype, copy=False) for m in self._lowpass_factors)
+        return ar @ (br @ planes @ bct) @ act
+
+    def _blur(self, planes: np.ndarray) -> np.ndarray:
+        if self.psf < PSF_NEGLIGIBLE:
+            return planes
+        return ndimage.gaussian_filter(planes, (0, 0, self.psf, self.psf), mode="nearest")
+
+    def __call__(
+        self, s0: np.ndarray, columns: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """The model patterns (N, P) of simulated ones *s0*, and their
+        derivatives (N, P, K) from those of *s0*, *columns* (processed in
+        float32: a dozen passes over them were the full field's largest
+        cost; the patterns stay float64)."""
+        n, p = s0.shape
+        x = self._planes(s0[..., None])
+        d = None if columns is None else self._planes(columns, np.float32)
+        axes = (2, 3)
+        x = x - x.mean(axis=axes, keepdims=True)
+        sd = np.sqrt((x**2).mean(axis=axes, keepdims=True))
+        x = x / sd
+
+        def f32(a):
+            return np.asarray(a, dtype=np.float32)
+
+        if d is not None:
+            d = d - d.mean(axis=axes, keepdims=True)
+            d = (d - f32(x) * (f32(x) * d).mean(axis=axes, keepdims=True)) / f32(sd)
+        lobe = 1.0 if self.lobe is None else self.lobe
+        c = self.contrast
+        if c:
+            # Step 1 and 2 in counts; 3: the static background divided out
+            raw = lobe * (1 + c * x)
+            den = raw.mean(axis=0, keepdims=True) if self.ghost else lobe
+            den = self._blur(den * np.ones((1, 1) + self.shape))
+            x = self._blur(raw) / den
+            if d is not None:
+                d = self._blur(f32(c * lobe) * d) / f32(den)
+            if self.highpass:
+                low = self._lowpass(x)
+                x = x / low
+                if d is not None:
+                    d = (d - f32(x) * self._lowpass(d)) / f32(low)
+        else:
+            # The faint-pattern limit of the same: the background's blur
+            # divided out of the blurred modulation, the ghost subtracted
+            blurred_lobe = self._blur(lobe * np.ones((1, 1) + self.shape))
+            x = self._blur(lobe * x) / blurred_lobe
+            if d is not None:
+                d = self._blur(f32(lobe) * d) / f32(blurred_lobe)
+            if self.ghost:
+                x = x - x.mean(axis=0, keepdims=True)
+            if self.highpass:
+                x = x - self._lowpass(x)
+                if d is not None:
+                    d = d - self._lowpass(d)
+        return self._flat(x, (n, p)), None if d is None else self._flat(d, columns.shape)
+
+
+def _processed_ncc(e, s0, processing):
+    return float((ori.standardise(processing(s0)[0]) * e).mean())
+
+
+def _estimate_processing(problem, arrays, geometry, rotations) -> _Processing:
+    """The model of what was done to the patterns (:class:`_Processing`)
+    that correlates best with them, one property after the other: the
+    high-pass (:data:`HIGHPASS_GRID`), the point spread (px; unmodelled,
+    a blur of 0.6 px moved pcz by 11 standard errors, band widths being
+    what pcz scales), whether the map's mean was divided out, the
+    contrast (:data:`CONTRAST_GRID`)."""
+    n = len(problem.points)
+    shape = tuple(problem.experimental.shape[1:])
+    e = ori.standardise(problem.experimental.reshape(n, -1).astype(np.float64))
+    s0 = ori.project_patterns(rotations, geometry.detector(problem.points), arrays).reshape(n, -1)
+    # The high-pass and the point spread, properties of each pattern, on
+    # every k-th pattern; the ghost and the contrast on all of them (on 50
+    # of 121 the map's mean pattern was not found)
+    few = np.unique(np.linspace(0, n - 1, min(n, ESTIMATION_PATTERNS)).astype(int))
+
+    def best(candidates, pick=slice(None)):
+        return max(candidates, key=lambda proc: _processed_ncc(e[pick], s0[pick], proc))
+
+    proc = best(
+        (_Processing(shape, 2 * PSF_STEP, h * shape[1], lobe=problem.lobe) for h in HIGHPASS_GRID),
+        few,
+    )
+    sigmas = np.arange(0.0, PSF_MAX + 1e-9, PSF_STEP)
+    ncc = []
+    for sg in sigmas:
+        ncc.append(_processed_ncc(e[few], s0[few], replace(proc, psf=sg)))
+        # Past the peak twice in a row: the rest of the grid cannot win
+        if len(ncc) > 2 and ncc[-1] < ncc[-2] < max(ncc):
+            break
+    sigmas = sigmas[: len(ncc)]
+    k = int(np.argmax(ncc))
+    psf = float(sigmas[k])
+    if 0 < k < len(sigmas) - 1:
+        # Vertex of the parabola through the best and its neighbours
+        a, b, c = ncc[k - 1], ncc[k], ncc[k + 1]
+        den = a - 2 * b + c
+        if den < 0:
+            psf = float(sigmas[k] + PSF_STEP * 0.5 * (a - c) / den)
+    proc = replace(proc, psf=psf)
+    proc = best(replace(proc, ghost=g) for g in (False, True))
+    return best(replace(proc, contrast=c) for c in CONTRAST_GRID)
