@@ -20,7 +20,7 @@ import numpy as np
 from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.calibration._dic_fit import _expand, _prior_per_axis, _solved_values
-from kikuchipy_geomdic.calibration._problem import _LoopOutcome, _Problem, _State, _step_record
+from kikuchipy_geomdic.calibration._problem import _LoopOutcome, _Problem, _step_record
 from kikuchipy_geomdic.calibration._processing import _estimate_processing
 from kikuchipy_geomdic.calibration._progress import _Progress
 from kikuchipy_geomdic.calibration._uncertainty import (
@@ -31,10 +31,9 @@ from kikuchipy_geomdic.calibration._uncertainty import (
     _dic_update,
     _inflated,
     _named_errors,
-    _standard_errors,
 )
 from kikuchipy_geomdic.calibration.jacobian import INTENSITY_STEPS, intensity_jacobian
-from kikuchipy_geomdic.calibration.solve import solve_joint
+from kikuchipy_geomdic.calibration.solve import JointSystem, solve_joint
 from kikuchipy_geomdic.geometry import MapGeometry, rotations_from_vectors, solved_parameters
 
 #: Gauss-Newton steps of the full-field stage at most; it stops earlier
@@ -76,7 +75,8 @@ def _full_field_stage(
     run again unbinned (*dic_stage*) unless the user chose the *binning*.
     Returns the outcome, the standard errors (None: the DIC stage's at the
     end) and the adequacy."""
-    standard_errors = _standard_errors(problem, outcome.state, orientation_prior)
+    dic_update = _dic_update(problem, outcome.state, orientation_prior)
+    standard_errors = _named_errors(problem.parameters, dic_update.standard_errors)
     loose = [n for n in _PC if standard_errors.get(n, 0) > DETERMINACY_LIMITS[n]]
     if guarded and full_field and loose:
         # The full field needs a start in its basin, which a PC the
@@ -107,8 +107,16 @@ def _full_field_stage(
             1 + max((h["iteration"] for h in outcome.history), default=-1),
             progress.write,
         )
-        state = _State.measure(problem, ff.geometry, ff.rotations)
-        adequacy = _adequacy(problem, ff, _dic_update(problem, state, orientation_prior))
+        adequacy = _adequacy(problem, ff, outcome.state.geometry, dic_update)
+        # The DIC field stays the last one measured, the DIC stage's:
+        # measuring it again at the full field's solution, which is within
+        # the basin of it, cost a sixth of the calibration
+        state = replace(
+            outcome.state,
+            geometry=ff.geometry,
+            rotations=ff.rotations,
+            scores=problem.ncc(ff.geometry, ff.rotations),
+        )
         progress.write(f"  {adequacy['verdict']}")
         if not adequacy["consistent"]:
             warnings.warn(adequacy["verdict"], UserWarning, stacklevel=3)
@@ -328,13 +336,19 @@ def _gauss_newton(
         residual, j_geo, j_rot, var = _intensity_system(
             problem, arrays, geometry, rotations, solved, processing, jacobians=refresh
         )
-        if refresh:
-            jg, jr = j_geo, j_rot
         if weights is None:
             # Weights fixed at the first step, so that chi2 compares steps
             weights = 1 / var
+        if refresh:
+            jg, jr = j_geo, j_rot
+            # Jacobians and weights fixed until the next refresh: their
+            # normal equations serve every residual until then
+            all_free = JointSystem.build(jg, jr, weights, prior_rad)
+            some_free = all_free
+            if free and len(free) < len(solved):
+                some_free = JointSystem.build(jg[..., free], jr, weights, prior_rad)
         offsets = problem.rotation_offsets(rotations)
-        full = solve_joint(jg, jr, residual, weights, prior=prior_rad, offsets=offsets)
+        full = all_free.solve(residual, offsets)
         if full.chi2 > chi2_prev:
             # The last step went uphill: undo it and stop
             history[-1]["accepted"] = False
@@ -350,11 +364,7 @@ def _gauss_newton(
         se = np.sqrt(np.clip(np.diag(cov), 0, None))
         if not free:
             break
-        upd = full
-        if len(free) < len(solved):
-            upd = solve_joint(
-                jg[..., free], jr, residual, weights, prior=prior_rad, offsets=offsets
-            )
+        upd = full if some_free is all_free else some_free.solve(residual, offsets)
         delta = dict(zip([solved[i] for i in free], map(float, upd.delta)))
         chi2_before, chi2_prev, last = chi2_prev, full.chi2, (geometry, rotations)
         geometry = geometry.updated(_expand(delta, split))

@@ -103,7 +103,9 @@ class GeometryRefinementResult:
         ``{name: coefficient}`` dicts (e.g. tilt and sample_tilt).
     field_before, field_after
         :class:`~kikuchipy_geomdic.patterns.displacement.DisplacementField` at the
-        start and at the refined geometry.
+        start and at the last geometry the DIC measured: the refined one,
+        or, after the full-field stage, the DIC stage's last (the full
+        field's start, within :data:`FULL_FIELD_BASIN` of the solution).
     converged
         Whether the loop ended by its tolerances (joint: every step below
         its standard error; paper: NCC gain below ``ncc_tolerance`` and

@@ -38,7 +38,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Update", "JointUpdate", "solve_update", "solve_joint", "coupling_matrix"]
+__all__ = [
+    "Update",
+    "JointUpdate",
+    "JointSystem",
+    "solve_update",
+    "solve_joint",
+    "coupling_matrix",
+]
 
 
 @dataclass(frozen=True)
@@ -374,91 +381,161 @@ def solve_joint(
     >>> np.round(u.delta, 9).tolist(), np.round(u.rotations, 9).tolist()
     ([0.3], [[0.1, 0.0, 0.0], [0.0, -0.2, 0.05]])
     """
-    jg = np.asarray(j_geo, dtype=np.float64)
-    jr = np.asarray(j_rot, dtype=np.float64)
-    b = np.asarray(residual, dtype=np.float64)
-    w = np.asarray(weights, dtype=np.float64)
-    if jg.ndim != 3 or jr.shape != jg.shape[:2] + (3,) or b.shape != jg.shape[:2]:
-        raise ValueError(
-            f"Shapes do not match: j_geo {jg.shape} (N, M, K), j_rot {jr.shape} "
-            f"(N, M, 3), residual {b.shape} (N, M)"
-        )
-    if w.shape != b.shape:
-        raise ValueError(f"weights {w.shape} differ from residual {b.shape}")
-    if not all(np.isfinite(a).all() for a in (jg, jr, b, w)) or (w < 0).any():
-        raise ValueError("Jacobians, residual and weights must be finite, weights >= 0")
-    n, _, k = jg.shape
-    p = 0.0 if prior is None else 1.0 / float(prior) ** 2
-    if prior is not None and not (np.isfinite(p) and prior > 0):
-        raise ValueError(f"prior must be a positive standard deviation, not {prior}")
-    w0 = np.zeros((n, 3)) if offsets is None else np.asarray(offsets, dtype=np.float64)
+    return JointSystem.build(j_geo, j_rot, weights, prior, rtol).solve(residual, offsets, damping)
 
-    # Batched matrix products (BLAS): einsum over the M vectors or pixels
-    # of a full-field system took most of its time
-    jgw_t = np.swapaxes(jg * w[..., None], 1, 2)
-    jrw_t = np.swapaxes(jr * w[..., None], 1, 2)
-    a = jrw_t @ jr + p * np.eye(3)
-    bb = jrw_t @ jg
-    c = jgw_t @ jg
-    ar = (jrw_t @ b[..., None])[..., 0] + p * w0
-    ag = (jgw_t @ b[..., None])[..., 0]
-    # Patterns without vectors and no prior have a singular 3 x 3 block;
-    # the pseudo-inverse gives them no rotation and no say in the geometry
-    a_inv = np.linalg.pinv(a, hermitian=True)
-    a_inv_b = a_inv @ bb
-    a_inv_r = np.einsum("nij,nj->ni", a_inv, ar)
-    s_red = (c - np.einsum("nki,nkj->nij", bb, a_inv_b)).sum(axis=0)
-    g_red = (ag - np.einsum("nki,nk->ni", bb, a_inv_r)).sum(axis=0)
-    c_all = c.sum(axis=0)
-    full = np.sqrt(np.clip(np.diag(c_all), 0, None))
-    if np.any(full == 0):
-        raise ValueError(
-            f"Jacobian column(s) {np.flatnonzero(full == 0).tolist()} are zero after "
-            "weighting: those parameters have no measurable effect"
-        )
-    # Scaled by the full sensitivities, the reduced matrix is
-    # dimensionless; its eigenvalues say how much of each signature
-    # survives the elimination of the rotations
-    s_scaled = s_red / np.outer(full, full)
-    s_scaled = (s_scaled + s_scaled.T) / 2
-    mu, v = np.linalg.eigh(s_scaled)
-    keep = mu > rtol * max(mu.max(), 1.0)
-    g_scaled = g_red / full
-    coef = np.zeros_like(mu)
-    coef[keep] = 1.0 / (mu[keep] + damping)
-    delta = -(v @ (coef * (v.T @ g_scaled))) / full
-    cov_scaled = (v[:, keep] / mu[keep]) @ v[:, keep].T
-    null = v[:, ~keep] / full[:, None]
-    if null.size:
-        null = null / np.linalg.norm(null, axis=0)
-    dw = -(a_inv_r + a_inv_b @ delta)
 
-    r_after = b + jg @ delta + (jr @ dw[..., None])[..., 0]
-    chi2 = float((w * b**2).sum())
-    chi2_after = float((w * r_after**2).sum())
-    n_obs = int((w > 0).sum())
-    n_rot = int((np.linalg.matrix_rank(a, hermitian=True)).sum())
-    dof = max(n_obs - n_rot - int(keep.sum()), 1)
-    factor = chi2_after / dof
-    s_inv = cov_scaled / np.outer(full, full)
-    model = factor * s_inv
-    cov = _with_pattern_correlations(
-        model, s_inv, (jgw_t @ r_after[..., None])[..., 0], int(keep.sum())
-    )
-    # Rotation errors given the geometry (the geometry's own error adds a
-    # common part, see covariance)
-    rot_sigma = np.sqrt(factor * np.clip(np.diagonal(a_inv, axis1=1, axis2=2), 0, None))
-    return JointUpdate(
-        delta=delta,
-        rotations=dw,
-        covariance=cov,
-        model_covariance=model,
-        null_space=null,
-        rotation_sigma=rot_sigma,
-        variance_factor=factor,
-        chi2=chi2,
-        predicted_chi2=chi2_after,
-        dof=dof,
-        reduced_norms=np.sqrt(np.clip(np.diag(s_red), 0, None)),
-        full_norms=full,
-    )
+@dataclass(frozen=True, eq=False)
+class JointSystem:
+    """The normal equations of :func:`solve_joint` without the residual:
+    built once (:meth:`build`) for Jacobians and weights that serve
+    several residuals (:meth:`solve`), as the full field's frozen
+    Jacobians do. Forming the weighted products is most of a solve's
+    cost on a full-field system."""
+
+    jg: np.ndarray
+    jr: np.ndarray
+    w: np.ndarray
+    jgw_t: np.ndarray
+    jrw_t: np.ndarray
+    prior_precision: float
+    a_inv: np.ndarray
+    a_inv_b: np.ndarray
+    bb: np.ndarray
+    s_red: np.ndarray
+    full: np.ndarray
+    mu: np.ndarray
+    v: np.ndarray
+    keep: np.ndarray
+    n_rot: int
+
+    @classmethod
+    def build(
+        cls,
+        j_geo: np.ndarray,
+        j_rot: np.ndarray,
+        weights: np.ndarray,
+        prior: float | None = None,
+        rtol: float = 1e-10,
+    ) -> JointSystem:
+        """The system of Jacobians *j_geo* (N, M, K), *j_rot* (N, M, 3),
+        *weights* (N, M) and *prior*, as in :func:`solve_joint`."""
+        jg = np.asarray(j_geo, dtype=np.float64)
+        jr = np.asarray(j_rot, dtype=np.float64)
+        w = np.asarray(weights, dtype=np.float64)
+        if jg.ndim != 3 or jr.shape != jg.shape[:2] + (3,):
+            raise ValueError(
+                f"Shapes do not match: j_geo {jg.shape} (N, M, K), j_rot {jr.shape} (N, M, 3)"
+            )
+        if w.shape != jg.shape[:2]:
+            raise ValueError(f"weights {w.shape} differ from the Jacobians' {jg.shape[:2]}")
+        if not all(np.isfinite(a).all() for a in (jg, jr, w)) or (w < 0).any():
+            raise ValueError("Jacobians, residual and weights must be finite, weights >= 0")
+        p = 0.0 if prior is None else 1.0 / float(prior) ** 2
+        if prior is not None and not (np.isfinite(p) and prior > 0):
+            raise ValueError(f"prior must be a positive standard deviation, not {prior}")
+        # Batched matrix products (BLAS): einsum over the M vectors or
+        # pixels of a full-field system took most of its time
+        jgw_t = np.swapaxes(jg * w[..., None], 1, 2)
+        jrw_t = np.swapaxes(jr * w[..., None], 1, 2)
+        a = jrw_t @ jr + p * np.eye(3)
+        bb = jrw_t @ jg
+        c = jgw_t @ jg
+        # Patterns without vectors and no prior have a singular 3 x 3
+        # block; the pseudo-inverse gives them no rotation and no say in
+        # the geometry
+        a_inv = np.linalg.pinv(a, hermitian=True)
+        a_inv_b = a_inv @ bb
+        s_red = (c - np.einsum("nki,nkj->nij", bb, a_inv_b)).sum(axis=0)
+        full = np.sqrt(np.clip(np.diag(c.sum(axis=0)), 0, None))
+        if np.any(full == 0):
+            raise ValueError(
+                f"Jacobian column(s) {np.flatnonzero(full == 0).tolist()} are zero after "
+                "weighting: those parameters have no measurable effect"
+            )
+        # Scaled by the full sensitivities, the reduced matrix is
+        # dimensionless; its eigenvalues say how much of each signature
+        # survives the elimination of the rotations
+        s_scaled = s_red / np.outer(full, full)
+        mu, v = np.linalg.eigh((s_scaled + s_scaled.T) / 2)
+        return cls(
+            jg=jg,
+            jr=jr,
+            w=w,
+            jgw_t=jgw_t,
+            jrw_t=jrw_t,
+            prior_precision=p,
+            a_inv=a_inv,
+            a_inv_b=a_inv_b,
+            bb=bb,
+            s_red=s_red,
+            full=full,
+            mu=mu,
+            v=v,
+            keep=mu > rtol * max(mu.max(), 1.0),
+            n_rot=int(np.linalg.matrix_rank(a, hermitian=True).sum()),
+        )
+
+    def solve(
+        self, residual: np.ndarray, offsets: np.ndarray | None = None, damping: float = 0.0
+    ) -> JointUpdate:
+        """The :class:`JointUpdate` for *residual* (N, M), with the
+        orientations *offsets* (N, 3) from their starts and *damping*,
+        as in :func:`solve_joint`."""
+        jg, jr, w, full, mu, v, keep = (
+            self.jg,
+            self.jr,
+            self.w,
+            self.full,
+            self.mu,
+            self.v,
+            self.keep,
+        )
+        b = np.asarray(residual, dtype=np.float64)
+        if b.shape != w.shape:
+            raise ValueError(f"residual {b.shape} differs from the Jacobians' {w.shape} (N, M)")
+        if not np.isfinite(b).all():
+            raise ValueError("Jacobians, residual and weights must be finite, weights >= 0")
+        n = jg.shape[0]
+        w0 = np.zeros((n, 3)) if offsets is None else np.asarray(offsets, dtype=np.float64)
+        ar = (self.jrw_t @ b[..., None])[..., 0] + self.prior_precision * w0
+        ag = (self.jgw_t @ b[..., None])[..., 0]
+        a_inv_r = np.einsum("nij,nj->ni", self.a_inv, ar)
+        g_red = (ag - np.einsum("nki,nk->ni", self.bb, a_inv_r)).sum(axis=0)
+        g_scaled = g_red / full
+        coef = np.zeros_like(mu)
+        coef[keep] = 1.0 / (mu[keep] + damping)
+        delta = -(v @ (coef * (v.T @ g_scaled))) / full
+        cov_scaled = (v[:, keep] / mu[keep]) @ v[:, keep].T
+        null = v[:, ~keep] / full[:, None]
+        if null.size:
+            null = null / np.linalg.norm(null, axis=0)
+        dw = -(a_inv_r + self.a_inv_b @ delta)
+
+        r_after = b + jg @ delta + (jr @ dw[..., None])[..., 0]
+        chi2 = float((w * b**2).sum())
+        chi2_after = float((w * r_after**2).sum())
+        n_obs = int((w > 0).sum())
+        dof = max(n_obs - self.n_rot - int(keep.sum()), 1)
+        factor = chi2_after / dof
+        s_inv = cov_scaled / np.outer(full, full)
+        model = factor * s_inv
+        cov = _with_pattern_correlations(
+            model, s_inv, (self.jgw_t @ r_after[..., None])[..., 0], int(keep.sum())
+        )
+        # Rotation errors given the geometry (the geometry's own error adds
+        # a common part, see covariance)
+        rot_sigma = np.sqrt(factor * np.clip(np.diagonal(self.a_inv, axis1=1, axis2=2), 0, None))
+        return JointUpdate(
+            delta=delta,
+            rotations=dw,
+            covariance=cov,
+            model_covariance=model,
+            null_space=null,
+            rotation_sigma=rot_sigma,
+            variance_factor=factor,
+            chi2=chi2,
+            predicted_chi2=chi2_after,
+            dof=dof,
+            reduced_norms=np.sqrt(np.clip(np.diag(self.s_red), 0, None)),
+            full_norms=full,
+        )
