@@ -38,6 +38,7 @@ from scipy import ndimage
 
 from kikuchipy_geomdic.geometry import forward_map
 from kikuchipy_geomdic.patterns import displacement as dsp
+from kikuchipy_geomdic.patterns.roi import roi_average
 from kikuchipy_geomdic.patterns.simulation import simulate_patterns
 from kikuchipy_geomdic.validation import synthetic
 
@@ -73,7 +74,7 @@ def rms_error(field, shape):
     for i, v in enumerate(field.vectors):
         xb, yb = forward_map(v[:, 0], v[:, 1], PC_A, ANGLES_A, PC_B, ANGLES_B, shape)
         truth = np.stack([xb - v[:, 0], yb - v[:, 1]], axis=1)
-        u, c, _ = dsp.roi_average(v[:, :2], v[:, 2:], shape, field.rois, values=truth)
+        u, c, _ = roi_average(v[:, :2], v[:, 2:], shape, field.rois, values=truth)
         err.append((field.u[i] - u)[c > 0])
     err = np.concatenate(err)
     return float(np.sqrt(np.mean(np.sum(err**2, axis=1))))

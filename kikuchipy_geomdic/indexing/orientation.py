@@ -46,7 +46,7 @@ from kikuchipy.signals import EBSDMasterPattern
 from orix.quaternion import Rotation
 from scipy import ndimage
 
-from kikuchipy_geomdic.patterns.displacement import bin_pattern
+from kikuchipy_geomdic.patterns.preprocessing import bin_pattern
 from kikuchipy_geomdic.patterns.simulation import check_master_pattern
 
 __all__ = [

@@ -61,7 +61,6 @@ from kikuchipy_geomdic.indexing.orientation import (
     refine_arrays,
 )
 from kikuchipy_geomdic.indexing.variants import _qmul
-from kikuchipy_geomdic.patterns.displacement import bin_pattern
 
 # Defined in kikuchipy_geomdic.patterns.phases; importable from here for existing code
 from kikuchipy_geomdic.patterns.phases import (  # noqa: F401
@@ -71,6 +70,7 @@ from kikuchipy_geomdic.patterns.phases import (  # noqa: F401
     phases_match,
     replace_phase,
 )
+from kikuchipy_geomdic.patterns.preprocessing import bin_pattern
 
 __all__ = [
     "usable_points",

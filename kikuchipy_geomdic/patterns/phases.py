@@ -16,6 +16,8 @@ names differ ("Si", "silicon"). The rule used everywhere in the package
 :func:`check_phase` picks the map's phase to work with and checks it
 against the master pattern; :func:`replace_phase` gives a map the master
 pattern's phase, as kikuchipy's own refinement requires identical phases.
+
+Layer 3 (patterns): may import geometry, io, patterns.
 """
 
 from __future__ import annotations
