@@ -1543,7 +1543,7 @@ def refine_geometry_dic(
     pseudo_symmetry_ops
         Pseudo-symmetry operators (orix ``Rotation``, crystal frame, left
         factors ``op * rotation``), e.g.
-        ``synthetic.variant_operators()[1:]`` for BaTiO3. The joint
+        ``variant_operators()[1:]`` for BaTiO3. The joint
         solver picks per point the variant whose simulated pattern
         correlates best, before the loop and at the refined geometry; the
         paper solver passes them to kikuchipy.
@@ -1824,7 +1824,7 @@ class _Processing:
     divisions become subtractions. Every step is differentiable, so
     Jacobian columns go through it with the pattern. Fitted as
     ``a * S + b`` instead (the model family of
-    ``synthetic.degrade_patterns``), processed Ni patterns moved pcz by 5
+    ``degrade_patterns``), processed Ni patterns moved pcz by 5
     standard errors."""
 
     shape: tuple[int, int]

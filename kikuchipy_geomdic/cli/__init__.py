@@ -126,8 +126,10 @@ def _demo(args: argparse.Namespace) -> int:
     matplotlib.use("Agg")
     import numpy as np
 
+    from kikuchipy_geomdic.geometry import rotation_vectors
     from kikuchipy_geomdic.geometry.maps import flat_index
     from kikuchipy_geomdic.validation import synthetic
+    from kikuchipy_geomdic.validation.camera import Camera
 
     dose = None if args.paper or not args.dose else args.dose
     start = "centred" if args.paper else "indexed"
@@ -136,7 +138,7 @@ def _demo(args: argparse.Namespace) -> int:
     # A user's map is recorded by a camera and processed (background lobe,
     # blur, shot noise, static and dynamic background removal); the
     # paper's study is noise-free
-    noise = dict(camera=synthetic.Camera(dose=dose)) if dose else {}
+    noise = dict(camera=Camera(dose=dose)) if dose else {}
     sm = synthetic.synthetic_map(
         "Si",
         navigation_shape=(args.rows, args.cols),
@@ -188,7 +190,7 @@ def _demo(args: argparse.Namespace) -> int:
     rms = res.xmap.prop["dic_rms"]
     ok = rms <= FAILED_POINT_FACTOR * np.median(rms)
     for label, rot in (("start", sm.start_xmap.rotations[idx]), ("after", res.xmap.rotations)):
-        dev = synthetic.rotation_vectors(~truth[ok] * rot[ok])
+        dev = rotation_vectors(~truth[ok] * rot[ok])
         absolute = np.rad2deg(np.linalg.norm(dev, axis=1)).mean()
         relative = np.rad2deg(np.linalg.norm(dev - dev.mean(axis=0), axis=1)).mean()
         print(
@@ -412,7 +414,7 @@ def load_master_pattern(spec: str, energy: float):
     import numpy as np
     from kikuchipy.signals import EBSDMasterPattern
 
-    from kikuchipy_geomdic.validation import synthetic
+    from kikuchipy_geomdic.validation import master_patterns
 
     if not np.isfinite(energy) or not 0 < energy <= 100:
         raise CLIError(f"--energy {energy} kV is not a beam energy")
@@ -425,7 +427,7 @@ def load_master_pattern(spec: str, energy: float):
                     f"the shipped dynamical {names[spec.lower()]} master pattern is for "
                     f"20 kV: using a kinematical one computed for {energy:g} kV"
                 )
-            return synthetic.master_pattern(names[spec.lower()], kind="auto", energy=energy)
+            return master_patterns.master_pattern(names[spec.lower()], kind="auto", energy=energy)
         raise CLIError(
             f"master pattern {spec!r} does not exist (give a file kikuchipy reads, or "
             f"one of {', '.join(MASTER_PATTERN_NAMES)})"

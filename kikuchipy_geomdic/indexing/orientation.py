@@ -187,9 +187,9 @@ def master_pattern_arrays(
 
     Examples
     --------
-    >>> from kikuchipy_geomdic.validation import synthetic
+    >>> from kikuchipy_geomdic.validation import master_patterns
     >>> from kikuchipy_geomdic.indexing.orientation import master_pattern_arrays
-    >>> mpa = master_pattern_arrays(synthetic.master_pattern("Si"), 20)
+    >>> mpa = master_pattern_arrays(master_patterns.master_pattern("Si"), 20)
     >>> mpa.upper.shape, mpa.upper.dtype.name, mpa.scale
     ((201, 201), 'float32', 100.0)
     """
@@ -736,10 +736,11 @@ def refine_patterns(
 
     >>> import numpy as np
     >>> from kikuchipy_geomdic.validation import synthetic
+    >>> from kikuchipy_geomdic.validation.orientations import perturb_rotations
     >>> from kikuchipy_geomdic.indexing.orientation import refine_patterns
     >>> sm = synthetic.synthetic_map("Si", (2, 2), shape=(60, 60), seed=0)
     >>> rng = np.random.default_rng(0)
-    >>> start = synthetic.perturb_rotations(sm.xmap.rotations, 2.0, rng)
+    >>> start = perturb_rotations(sm.xmap.rotations, 2.0, rng)
     >>> res = refine_patterns(sm.signal.data.reshape(4, 60, 60), start, sm.detector,
     ...                       sm.master_pattern, 20)
     >>> err = np.rad2deg((~sm.xmap.rotations * res.rotations).angle)
@@ -913,9 +914,9 @@ def project_patterns(
     >>> import numpy as np
     >>> from kikuchipy.detectors import EBSDDetector
     >>> from orix.quaternion import Rotation
-    >>> from kikuchipy_geomdic.validation import synthetic
+    >>> from kikuchipy_geomdic.validation import master_patterns
     >>> from kikuchipy_geomdic.indexing.orientation import project_patterns
-    >>> mp = synthetic.master_pattern("Si")
+    >>> mp = master_patterns.master_pattern("Si")
     >>> det = EBSDDetector((30, 40), pc=[0.5, 0.4, 0.6], sample_tilt=70)
     >>> ours = project_patterns(Rotation.random(2), det, mp, 20)
     >>> ours.shape
@@ -976,11 +977,11 @@ def project_derivatives(
     >>> import numpy as np
     >>> from kikuchipy.detectors import EBSDDetector
     >>> from orix.quaternion import Rotation
-    >>> from kikuchipy_geomdic.validation import synthetic
+    >>> from kikuchipy_geomdic.validation import master_patterns
     >>> from kikuchipy_geomdic.indexing.orientation import (
     ...     detector_matrix, master_pattern_arrays, project_arrays, project_derivatives)
     >>> det = EBSDDetector((40, 40), pc=[0.5, 0.3, 0.6], sample_tilt=70)
-    >>> arrays = master_pattern_arrays(synthetic.master_pattern("Si"), 20)
+    >>> arrays = master_pattern_arrays(master_patterns.master_pattern("Si"), 20)
     >>> om, pc = detector_matrix(det), det.pc.reshape(1, 3)
     >>> q = Rotation.from_euler(np.deg2rad([[10, 20, 30]])).data
     >>> s, j_rot, j_pc = project_derivatives(q, pc, om, arrays, (40, 40))
@@ -1240,7 +1241,7 @@ def compare_variants(
     removal correlate neighbouring pixels, and a white-noise estimate was
     overconfident, measured). The *significance* of the call is
     ``min_b m_ab / se_ab``, a z-score: measured on BaTiO3 patterns of 120
-    px from ``synthetic.Camera``, a median 1.6 for right calls at 30
+    px from ``Camera``, a median 1.6 for right calls at 30
     counts per pixel and 3.8 at 150.
 
     Parameters
@@ -1270,13 +1271,14 @@ def compare_variants(
     >>> import numpy as np
     >>> from kikuchipy.detectors import EBSDDetector
     >>> from orix.quaternion import Rotation
-    >>> from kikuchipy_geomdic.validation import synthetic
+    >>> from kikuchipy_geomdic.validation import master_patterns
+    >>> from kikuchipy_geomdic.indexing.variants import variant_operators
     >>> from kikuchipy_geomdic.indexing.orientation import (
     ...     compare_variants, detector_matrix, master_pattern_arrays, project_patterns)
-    >>> mp = synthetic.master_pattern("BaTiO3")
+    >>> mp = master_patterns.master_pattern("BaTiO3")
     >>> det = EBSDDetector((60, 60), pc=[0.5, 0.3, 0.6], sample_tilt=70)
     >>> r = Rotation.from_euler(np.deg2rad([[10, 30, 50]]))
-    >>> flipped = synthetic.variant_operators()[1] * r
+    >>> flipped = variant_operators()[1] * r
     >>> pattern = project_patterns(flipped, det, mp)
     >>> q = np.stack([r.data, flipped.data], axis=1)
     >>> arrays = master_pattern_arrays(mp, 20)

@@ -171,12 +171,12 @@ def check_phase(
 
     Examples
     --------
-    >>> from kikuchipy_geomdic.validation import synthetic
+    >>> from kikuchipy_geomdic.validation import master_patterns, synthetic
     >>> from kikuchipy_geomdic.patterns.phases import check_phase
     >>> sm = synthetic.synthetic_map("Si", (2, 2), shape=(20, 20))
     >>> check_phase(sm.xmap, sm.master_pattern)
     0
-    >>> bto = synthetic.master_pattern("BaTiO3")
+    >>> bto = master_patterns.master_pattern("BaTiO3")
     >>> check_phase(sm.xmap, bto)
     Traceback (most recent call last):
     ...

@@ -6,7 +6,7 @@ mean, unit standard deviation); the simulated one is optionally blurred
 noise (as in the paper); both are binned (:func:`bin_pattern`), smoothed
 and standardised again; the OpenCV backend then maps both to 8 bits with
 one common linear map. The binning and smoothing happen in
-:func:`~kikuchipy_geomdic.patterns.displacement.pattern_vectors`, whose
+:func:`~kikuchipy_geomdic.patterns.vectors.pattern_vectors`, whose
 options they are.
 
 Layer 3 (patterns): may import geometry, io, patterns.
