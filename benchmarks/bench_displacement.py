@@ -38,8 +38,9 @@ from scipy import ndimage
 
 from kikuchipy_geomdic.geometry import forward_map
 from kikuchipy_geomdic.patterns import displacement as dsp
+from kikuchipy_geomdic.patterns.roi import roi_average
 from kikuchipy_geomdic.patterns.simulation import simulate_patterns
-from kikuchipy_geomdic.validation import synthetic
+from kikuchipy_geomdic.validation import master_patterns
 
 PC_A, ANGLES_A = (0.5, 0.3, 0.6), (0.0, 0.0, 70.0, 0.0)
 PC_B, ANGLES_B = (0.51, 0.31, 0.59), (0.5, 0.5, 70.0, 0.0)
@@ -73,7 +74,7 @@ def rms_error(field, shape):
     for i, v in enumerate(field.vectors):
         xb, yb = forward_map(v[:, 0], v[:, 1], PC_A, ANGLES_A, PC_B, ANGLES_B, shape)
         truth = np.stack([xb - v[:, 0], yb - v[:, 1]], axis=1)
-        u, c, _ = dsp.roi_average(v[:, :2], v[:, 2:], shape, field.rois, values=truth)
+        u, c, _ = roi_average(v[:, :2], v[:, 2:], shape, field.rois, values=truth)
         err.append((field.u[i] - u)[c > 0])
     err = np.concatenate(err)
     return float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
@@ -95,7 +96,7 @@ def main():
     parser.add_argument("--n", type=int, default=32, help="patterns per size")
     args = parser.parse_args()
 
-    mp = synthetic.master_pattern("Si", kind="dynamical")
+    mp = master_patterns.master_pattern("Si", kind="dynamical")
     q = np.random.default_rng(0).normal(size=(args.n, 4))
     rot = Rotation(q / np.linalg.norm(q, axis=1, keepdims=True))
     print(f"{args.n} patterns per size, {os.cpu_count()} cores")

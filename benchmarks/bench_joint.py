@@ -5,7 +5,7 @@ Usage::
 
     python benchmarks/bench_joint.py            # 10 x 10 Si map, 120 x 120 px, N = 100
     python benchmarks/bench_joint.py --quick    # 4 x 4 map, 60 x 60 px, DE on 2 points
-    # realistic patterns (synthetic.Camera, 150 counts/px), indexed start
+    # realistic patterns (Camera, 150 counts/px), indexed start
     python benchmarks/bench_joint.py --starts indexed --camera 150 \
         --out benchmarks/results/realistic
     # noise study: real-Ni noise, against Nelder-Mead and the oracle, one seed
@@ -17,7 +17,7 @@ orientations held fixed (``orientation_prior`` of 1e-4 deg): the noise
 floor of the data, against which the joint solve from indexed starts is
 judged.
 
-Per start, one synthetic Si map (``synthetic.master_pattern("Si")``,
+Per start, one synthetic Si map (``master_patterns.master_pattern("Si")``,
 orientations ``--orientations``, default "random"; true geometry
 ``synthetic.default_geometry``; start geometry = truth +
 ``synthetic.DEFAULT_PERTURBATION``) and one call of
@@ -49,7 +49,7 @@ Starts:
 Besides ``compare_methods``' columns, the final rotations of every method
 are recorded (by wrapping the three functions ``compare_methods`` calls,
 in this script only) to give the misorientation with the rotation common
-to all points removed (as ``synthetic.common_rotation``, the mean rotation
+to all points removed (as ``common_rotation``, the mean rotation
 vector of ``~truth * rotation``, but over the points within 1 deg of the
 median vector: see :func:`misorientations`), which is what no calibration
 can tell from a detector-angle error; its mean and median over the points,
@@ -83,8 +83,10 @@ from _tee import Tee  # noqa: E402
 from orix.quaternion import Rotation  # noqa: E402
 
 from kikuchipy_geomdic.calibration.refinement import calibration_points  # noqa: E402
+from kikuchipy_geomdic.geometry import rotation_vectors  # noqa: E402
 from kikuchipy_geomdic.geometry.maps import flat_index  # noqa: E402
-from kikuchipy_geomdic.validation import comparison, study, synthetic  # noqa: E402
+from kikuchipy_geomdic.validation import comparison, master_patterns, scores, synthetic, tables  # noqa: E402
+from kikuchipy_geomdic.validation.camera import Camera  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 #: A point further than this (deg) from the common rotation counts as off
@@ -148,13 +150,13 @@ def misorientations(rot: Rotation, truth: Rotation) -> dict[str, float]:
     """Misorientation (deg) to the truth, with and without the common rotation.
 
     The common rotation is the mean rotation vector of the deviations
-    ``T = ~truth * rot`` (as ``synthetic.common_rotation``) taken over the
+    ``T = ~truth * rot`` (as ``common_rotation``) taken over the
     points within :data:`OFF` deg of the component-wise median vector, so
     that one mis-indexed point (13 deg off here) does not shift it for all
     the others; it is removed as a right factor (``rot * ~C``).
     """
     rot, truth = rot.flatten(), truth.flatten()
-    v = np.rad2deg(synthetic.rotation_vectors(~truth * rot))
+    v = np.rad2deg(rotation_vectors(~truth * rot))
     inl = np.linalg.norm(v - np.median(v, axis=0), axis=1) < OFF
     cv = v[inl].mean(axis=0) if inl.any() else np.zeros(3)
     angle = float(np.linalg.norm(cv))
@@ -242,7 +244,7 @@ def run_oracle(sm, points, dic_kwargs=None):
         n_points=len(res.points),
         time=time.perf_counter() - t0,
         max_pc_error=float(np.abs(res.detector.pc - sm.detector.pc).max()),
-        **{f"err_{k}": v for k, v in study._geometry_errors(res.geometry, sm.geometry).items()},
+        **{f"err_{k}": v for k, v in scores._geometry_errors(res.geometry, sm.geometry).items()},
     )
 
 
@@ -257,7 +259,7 @@ def run_start(name, args, mp, side, out_dir, suffix):
     if args.camera is not None:
         # Realistic patterns: recorded by a camera, processed by the user
         kw.pop("dose", None)
-        kw["camera"] = synthetic.Camera(dose=args.camera)
+        kw["camera"] = Camera(dose=args.camera)
     t0 = time.perf_counter()
     sm = synthetic.synthetic_map(
         mp,
@@ -273,7 +275,7 @@ def run_start(name, args, mp, side, out_dir, suffix):
     flat = flat_index(pts, nav)
     truth_all = sm.xmap.rotations.flatten()
     m0 = misorientations(sm.start_xmap.rotations.flatten()[flat], truth_all[flat])
-    d0 = study.mean_displacement(sm.start_geometry, sm.geometry)
+    d0 = scores.mean_displacement(sm.start_geometry, sm.geometry)
     print(
         f"\n## Start {name!r}: {kw}, {side} x {side} map of {args.size} x {args.size} px, "
         f"orientations {args.orientations!r}, seed {args.seed} (map built in {t_map:.0f} s)\n"
@@ -317,7 +319,7 @@ def run_start(name, args, mp, side, out_dir, suffix):
             speedup=r["time_at_n"] / t_dic,
             undetermined=rc["undetermined"],
         )
-    print(study.format_table(rows, SHOW), flush=True)
+    print(tables.format_table(rows, SHOW), flush=True)
     by = {r["method"]: r for r in rows}
     print(
         "\nDIC joint speed-up (time_at_n ratio"
@@ -403,7 +405,7 @@ def main(argv=None) -> int:
         "--camera",
         type=float,
         default=None,
-        help="counts/px of a synthetic.Camera (realistic patterns: background lobe, "
+        help="counts/px of a Camera (realistic patterns: background lobe, "
         "blur, shot noise, static and dynamic background removal) instead of --dose",
     )
     ap.add_argument(
@@ -443,7 +445,7 @@ def main(argv=None) -> int:
             f"Code: {_code_version()}"
         )
         t_all = time.perf_counter()
-        mp = synthetic.master_pattern("Si")
+        mp = master_patterns.master_pattern("Si")
         for name in args.starts:
             run_start(name, args, mp, side, args.out, suffix)
         print(f"\nTotal {(time.perf_counter() - t_all) / 60:.1f} min")

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from kikuchipy_geomdic.validation import study as st
-from kikuchipy_geomdic.validation import synthetic
+from kikuchipy_geomdic.validation import synthetic, tables
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -143,8 +143,8 @@ def main(argv=None) -> int:
             minutes=study.wall_time / 60,
         )
         rows.append(row)
-        print(st.format_table([row]), flush=True)
-    print("\n" + st.format_table(rows))
+        print(tables.format_table([row]), flush=True)
+    print("\n" + tables.format_table(rows))
     RESULTS.mkdir(parents=True, exist_ok=True)
     with open(RESULTS / f"noise{'_quick' if args.quick else ''}{args.suffix}.csv", "w") as f:
         f.write(",".join(rows[0]) + "\n")

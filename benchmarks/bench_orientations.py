@@ -57,6 +57,7 @@ from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.indexing.reindex import reindex
 from kikuchipy_geomdic.validation import synthetic
+from kikuchipy_geomdic.validation.orientations import common_rotation, perturb_rotations
 
 MARK = "BENCH_RESULT "
 
@@ -80,7 +81,7 @@ def misorientation(
     # The common rotation of the points within a few degrees: a wrong
     # point tens of degrees off would swing the mean rotation vector
     near = mask & (absolute < 5 * np.median(absolute[mask]) + 0.1)
-    common = synthetic.common_rotation(r[near], t[near])
+    common = common_rotation(r[near], t[near])
     c = Rotation.from_axes_angles(common.axis, np.deg2rad(common.angle))
     relative = np.rad2deg((~t * (r * ~c)).angle)
     return absolute, relative
@@ -120,7 +121,7 @@ def _throughput_map(args, size):
     rng = np.random.default_rng(args.seed)
     axis = rng.normal(size=3)
     common = Rotation.from_axes_angles(axis / np.linalg.norm(axis), np.deg2rad(0.9))
-    start = synthetic.perturb_rotations(sm.xmap.rotations, 0.1, rng) * common
+    start = perturb_rotations(sm.xmap.rotations, 0.1, rng) * common
     return sm, start
 
 

@@ -38,7 +38,8 @@ import numpy as np
 
 matplotlib.use("Agg")
 
-from kikuchipy_geomdic.validation import study as st  # noqa: E402
+from kikuchipy_geomdic.validation import scores, tables  # noqa: E402
+from kikuchipy_geomdic.validation import study as st
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -65,12 +66,12 @@ def fill_eq2(table, material, nav, shape, seed=0):
         orientation_error=0,
         seed=seed,
     )
-    pts = st._all_points(nav)
+    pts = scores._all_points(nav)
     for i in np.flatnonzero(missing):
         r = table[i]
         delta = {str(r["param1"]): float(r["delta1"])}
         delta[str(r["param2"])] = delta.get(str(r["param2"]), 0.0) + float(r["delta2"])
-        table["initial_displacement_eq2"][i] = st.eq2_displacement(
+        table["initial_displacement_eq2"][i] = scores.eq2_displacement(
             sm.master_pattern, sm.xmap.rotations, base, base.updated(delta), pts, sm.energy
         )[0]
     return table
@@ -112,14 +113,14 @@ def report(study, mat, tag, quick=False):
         RESULTS / f"perturbation_{tag}_misorientation.png", dpi=110
     )
     study.plot_errors().savefig(RESULTS / f"perturbation_{tag}_errors.png", dpi=110)
-    pairs_done = st.pairs_in(study.table)
+    pairs_done = tables.pairs_in(study.table)
     for pair in pairs_done[:2] if quick else [("pcz", "tilt"), ("azimuthal", "sample_tilt")]:
         if pair in pairs_done:
             study.plot_normalised_errors(pair).savefig(
                 RESULTS / f"perturbation_{tag}_nerr_{pair[0]}_{pair[1]}.png", dpi=110
             )
     print(f"\n{mat}: {study.wall_time / 60:.1f} min wall for {study.table.size} runs")
-    print(st.format_table([s]))
+    print(tables.format_table([s]))
     rows = []
     for p in pairs_done:
         t = study.table[(study.table["param1"] == p[0]) & (study.table["param2"] == p[1])]
@@ -133,7 +134,7 @@ def report(study, mat, tag, quick=False):
                 max_d0_eq2=float(t["initial_displacement_eq2"].max()),
             )
         )
-    print(st.format_table(rows))
+    print(tables.format_table(rows))
     return s
 
 
@@ -148,11 +149,11 @@ def postprocess(args) -> int:
         path = RESULTS / f"perturbation_{tag}.csv"
         if not path.exists():
             continue
-        table = fill_eq2(st.read_table(path), mat, nav, shape)
-        st.write_table(table, path)
+        table = fill_eq2(tables.read_table(path), mat, nav, shape)
+        tables.write_table(table, path)
         geo = st.paper_geometry(nav, shape)
-        pts = st._all_points(nav)
-        scale, coupling = st.sensitivities(geo, pts)
+        pts = scores._all_points(nav)
+        scale, coupling = scores.sensitivities(geo, pts)
         old = {}
         jpath = RESULTS / f"perturbation_{tag}_summary.json"
         if jpath.exists():
@@ -167,7 +168,7 @@ def postprocess(args) -> int:
         )
         summaries.append(report(study, mat, tag, args.quick))
         plt.close("all")
-    print(st.format_table(summaries, SUMMARY_COLUMNS))
+    print(tables.format_table(summaries, SUMMARY_COLUMNS))
     return 0
 
 
@@ -312,7 +313,7 @@ def main(argv=None) -> int:
             )
         summaries.append(report(study, mat, tag, args.quick))
     print(f"\nAll materials: {(time.perf_counter() - t_all) / 60:.1f} min")
-    print(st.format_table(summaries, SUMMARY_COLUMNS))
+    print(tables.format_table(summaries, SUMMARY_COLUMNS))
     return 0
 
 

@@ -1,7 +1,7 @@
 """Benchmark: the calibration on maps made as a microscope and a user make them.
 
 Polycrystalline Ni maps of 11 x 11 points (121 calibration points, all of
-them) of 96 px patterns recorded by ``synthetic.Camera`` (background lobe
+them) of 96 px patterns recorded by ``Camera`` (background lobe
 at the PC, per-grain brightness, 0.6 px phosphor blur, Poisson counts in
 uint16, kikuchipy's static and dynamic background removal), the start
 geometry ``synthetic.DEFAULT_PERTURBATION`` (2 % of the width) off with
@@ -21,7 +21,7 @@ Cases:
 - ``ebsdsim-data``: the other way round;
 - ``far``: as ``moderate`` with the start twice as far off (4 %);
 - ``model-family``: ``a * blur(S) + b`` plus Poisson noise at 150
-  counts/px (``synthetic.degrade_patterns``), the full field's own model:
+  counts/px (``degrade_patterns``), the full field's own model:
   a labelled best case, not evidence.
 
 Printed per case and method: time, the largest error of the PC (pcx,
@@ -49,14 +49,15 @@ import numpy as np
 
 from kikuchipy_geomdic.calibration.bound import cramer_rao_bound
 from kikuchipy_geomdic.calibration.refinement import refine_geometry_dic
-from kikuchipy_geomdic.validation import synthetic
+from kikuchipy_geomdic.validation import master_patterns, synthetic
+from kikuchipy_geomdic.validation.camera import MODERATE, REAL_NI
 
 CASES = {
-    "moderate": dict(camera=synthetic.MODERATE),
-    "real-noise": dict(camera=synthetic.REAL_NI),
-    "emsoft-data": dict(camera=synthetic.MODERATE, calibrate="ebsdsim"),
-    "ebsdsim-data": dict(camera=synthetic.MODERATE, data="ebsdsim"),
-    "far": dict(camera=synthetic.MODERATE, far=True),
+    "moderate": dict(camera=MODERATE),
+    "real-noise": dict(camera=REAL_NI),
+    "emsoft-data": dict(camera=MODERATE, calibrate="ebsdsim"),
+    "ebsdsim-data": dict(camera=MODERATE, data="ebsdsim"),
+    "far": dict(camera=MODERATE, far=True),
     "model-family": dict(camera=None),
 }
 PC = ("pcx", "pcy", "pcz")
@@ -66,8 +67,8 @@ ANGLES = ("azimuthal", "tilt-sample_tilt")
 def realistic_map(case: str, seed: int, side: int = 11, size: int = 96):
     """The synthetic map of *case* (see the module docstring)."""
     cfg = CASES[case]
-    data = synthetic.master_pattern("Ni", kind=cfg.get("data", "emsoft"))
-    calibrate = synthetic.master_pattern(
+    data = master_patterns.master_pattern("Ni", kind=cfg.get("data", "emsoft"))
+    calibrate = master_patterns.master_pattern(
         "Ni", kind=cfg.get("calibrate", cfg.get("data", "emsoft"))
     )
     perturbation = synthetic.DEFAULT_PERTURBATION

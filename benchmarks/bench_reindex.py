@@ -54,9 +54,9 @@ def _report(**values) -> None:
 
 
 def stage_baseline(args) -> None:
-    from kikuchipy_geomdic.validation import synthetic
+    from kikuchipy_geomdic.validation import master_patterns
 
-    synthetic.master_pattern("Si")
+    master_patterns.master_pattern("Si")
     _report()
 
 
@@ -98,14 +98,14 @@ def stage_reindex(args) -> None:
 
     from kikuchipy_geomdic.indexing.reindex import reindex
     from kikuchipy_geomdic.io.conventions import load_detector
-    from kikuchipy_geomdic.validation import synthetic
+    from kikuchipy_geomdic.validation import master_patterns
 
     work = Path(args.workdir)
     signal = kp.load(work / "map.h5", lazy=True)
     start = orix_io.load(str(work / "start.h5"))
     truth = orix_io.load(str(work / "truth.h5"))
     det = load_detector(work / "detector.txt")
-    mp = synthetic.master_pattern("Si")
+    mp = master_patterns.master_pattern("Si")
     t0 = time.perf_counter()
     with dask.config.set(num_workers=args.workers) if args.workers else _null():
         out = reindex(

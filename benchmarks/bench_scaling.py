@@ -33,8 +33,7 @@ from pathlib import Path
 import dask
 
 from kikuchipy_geomdic.calibration.refinement import refine_geometry_dic
-from kikuchipy_geomdic.validation import study as st
-from kikuchipy_geomdic.validation import synthetic
+from kikuchipy_geomdic.validation import scores, synthetic, tables
 
 RESULTS = Path(__file__).resolve().parent / "results"
 STAGES = {
@@ -85,7 +84,7 @@ def run(side: int, size: int, max_iterations: int = 4) -> dict:
     dom = max(STAGES, key=lambda s: row[f"t_{s}"])
     row["dominant"] = dom
     row["dominant_share"] = row[f"t_{dom}"] / wall
-    err = st._geometry_errors(res.geometry, sm.geometry)
+    err = scores._geometry_errors(res.geometry, sm.geometry)
     row["max_pc_error"] = max(abs(err[k]) for k in ("pcx", "pcy", "pcz"))
     return row
 
@@ -125,7 +124,7 @@ def main(argv=None) -> int:
         + [f"t_{s}" for s in STAGES]
         + ["t_other", "dominant", "dominant_share", "max_pc_error"]
     )
-    print(st.format_table(rows, cols))
+    print(tables.format_table(rows, cols))
     RESULTS.mkdir(parents=True, exist_ok=True)
     with open(RESULTS / f"scaling{'_quick' if args.quick else ''}.csv", "w") as f:
         f.write(",".join(cols) + "\n")

@@ -77,8 +77,11 @@ from orix.quaternion import Rotation
 from kikuchipy_geomdic.calibration.refinement import calibration_points, refine_geometry_dic
 from kikuchipy_geomdic.geometry import copy_detector
 from kikuchipy_geomdic.indexing.reindex import VARIANT_SIGNIFICANCE, reindex
-from kikuchipy_geomdic.validation import synthetic
+from kikuchipy_geomdic.indexing.variants import VARIANT_NAMES, variant_operators
+from kikuchipy_geomdic.validation import master_patterns, synthetic
+from kikuchipy_geomdic.validation.camera import Camera
 from kikuchipy_geomdic.validation.comparison import pattern_wise_geometry
+from kikuchipy_geomdic.validation.orientations import common_rotation
 
 KINDS = {0: "base", 1: "180 deg", 2: "90 deg"}
 #: RMS error (deg) of the starting orientations; the calibration's
@@ -158,7 +161,7 @@ def threshold(confidence: np.ndarray, right: np.ndarray, share: float = 0.95):
 
 def variant_scores(xmap) -> np.ndarray:
     """The NCC of each variant candidate (N, 6) of a reindexed map."""
-    k = len(synthetic.VARIANT_NAMES)
+    k = len(VARIANT_NAMES)
     return np.stack([xmap.prop[f"variant_score_{i}"] for i in range(k)], axis=1)
 
 
@@ -188,8 +191,8 @@ def _accuracy(variant, truth) -> list[float]:
 
 
 def picks(args) -> None:
-    ops = synthetic.variant_operators()[1:]
-    mp = synthetic.master_pattern("BaTiO3", kind="ebsdsim") if args.mismatch else None
+    ops = variant_operators()[1:]
+    mp = master_patterns.master_pattern("BaTiO3", kind="ebsdsim") if args.mismatch else None
     kp_doses = args.doses if args.kikuchipy_doses is None else args.kikuchipy_doses
     cal_rows, rule_rows = [], []
     for dose in args.doses:
@@ -236,7 +239,7 @@ def picks(args) -> None:
 
 
 def detectors(args) -> None:
-    ops = synthetic.variant_operators()[1:]
+    ops = variant_operators()[1:]
     sm = _map(args, args.doses[0], args.seed)
     truth = sm.xmap.prop["variant"]
     nav = sm.geometry.navigation_shape
@@ -294,7 +297,7 @@ def variant_errors(rotations: Rotation, truth) -> tuple[np.ndarray, np.ndarray]:
     the misorientation (deg) to that variant with the map's common rotation
     (over the points in their true variant, within 5 deg) removed: a
     detector angle error is a common rotation of every orientation."""
-    ops = synthetic.variant_operators()
+    ops = variant_operators()
     sym = Rotation(truth.phases[0].point_group.proper_subgroup).flatten()
     v = truth.prop["variant"]
     parent = ~ops[v] * truth.rotations.flatten()
@@ -312,7 +315,7 @@ def variant_errors(rotations: Rotation, truth) -> tuple[np.ndarray, np.ndarray]:
     rel = ang[n, label]
     ok = (label == v) & (rel < 5)
     if ok.sum() >= 3:
-        c = synthetic.common_rotation(near[ok], target[ok])
+        c = common_rotation(near[ok], target[ok])
         common = Rotation.from_axes_angles(c.axis, np.deg2rad(c.angle))
         rel = np.rad2deg((~target * (near * ~common)).angle)
     return label, rel
@@ -321,7 +324,7 @@ def variant_errors(rotations: Rotation, truth) -> tuple[np.ndarray, np.ndarray]:
 def _start_error(sm) -> np.ndarray:
     """Angle (deg) of each start from the nearest variant of its truth."""
     label, _ = variant_errors(sm.start_xmap.rotations, sm.xmap)
-    ops = synthetic.variant_operators()
+    ops = variant_operators()
     parent = ~ops[sm.xmap.prop["variant"]] * sm.xmap.rotations.flatten()
     sym = Rotation(sm.xmap.phases[0].point_group.proper_subgroup).flatten()
     r = sm.start_xmap.rotations.flatten()
@@ -330,7 +333,7 @@ def _start_error(sm) -> np.ndarray:
 
 
 def users(args) -> None:
-    ops = synthetic.variant_operators()[1:]
+    ops = variant_operators()[1:]
     rows = []
     for dose in args.doses:
         for seed in args.seeds:
@@ -338,7 +341,7 @@ def users(args) -> None:
             with _quiet():
                 sm = synthetic.synthetic_map(
                     "BaTiO3", (args.rows, args.rows), orientations="stripes",
-                    shape=(args.size, args.size), seed=seed, camera=synthetic.Camera(dose=dose),
+                    shape=(args.size, args.size), seed=seed, camera=Camera(dose=dose),
                     start="indexed", orientation_error=1.0,
                 )  # fmt: skip
             err = _start_error(sm)

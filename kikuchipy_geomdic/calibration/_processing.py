@@ -107,7 +107,7 @@ class _Processing:
     divisions become subtractions. Every step is differentiable, so
     Jacobian columns go through it with the pattern. Fitted as
     ``a * S + b`` instead (the model family of
-    ``synthetic.degrade_patterns``), processed Ni patterns moved pcz by 5
+    ``degrade_patterns``), processed Ni patterns moved pcz by 5
     standard errors."""
 
     shape: tuple[int, int]

@@ -338,12 +338,12 @@ def intensity_jacobian(
     Examples
     --------
     >>> from orix.quaternion import Rotation
-    >>> from kikuchipy_geomdic.validation import synthetic
+    >>> from kikuchipy_geomdic.validation import master_patterns
     >>> from kikuchipy_geomdic.geometry import MapGeometry
     >>> from kikuchipy_geomdic.calibration.jacobian import intensity_jacobian
     >>> from kikuchipy_geomdic.indexing.orientation import master_pattern_arrays
     >>> geo = MapGeometry((0.5, 0.3, 0.6), (40, 40), 70, 8, (10, 10), (2, 2))
-    >>> arrays = master_pattern_arrays(synthetic.master_pattern("Si"), 20)
+    >>> arrays = master_pattern_arrays(master_patterns.master_pattern("Si"), 20)
     >>> s, jg, jr = intensity_jacobian(
     ...     geo, [[0, 0], [1, 1]], Rotation.random(2), arrays, ["pcx", "tilt"],
     ...     {"pcx": 1e-4, "tilt": 0.01})

@@ -176,7 +176,7 @@ def refine_geometry_dic(
     pseudo_symmetry_ops
         Pseudo-symmetry operators (orix ``Rotation``, crystal frame, left
         factors ``op * rotation``), e.g.
-        ``synthetic.variant_operators()[1:]`` for BaTiO3. The joint
+        ``variant_operators()[1:]`` for BaTiO3. The joint
         solver picks per point the variant whose simulated pattern
         correlates best, before the loop and at the refined geometry; the
         paper solver passes them to kikuchipy.

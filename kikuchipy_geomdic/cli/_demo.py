@@ -22,8 +22,10 @@ def _demo(args: argparse.Namespace) -> int:
     matplotlib.use("Agg")
     import numpy as np
 
+    from kikuchipy_geomdic.geometry import rotation_vectors
     from kikuchipy_geomdic.geometry.maps import flat_index
     from kikuchipy_geomdic.validation import synthetic
+    from kikuchipy_geomdic.validation.camera import Camera
 
     dose = None if args.paper or not args.dose else args.dose
     start = "centred" if args.paper else "indexed"
@@ -32,7 +34,7 @@ def _demo(args: argparse.Namespace) -> int:
     # A user's map is recorded by a camera and processed (background lobe,
     # blur, shot noise, static and dynamic background removal); the
     # paper's study is noise-free
-    noise = dict(camera=synthetic.Camera(dose=dose)) if dose else {}
+    noise = dict(camera=Camera(dose=dose)) if dose else {}
     sm = synthetic.synthetic_map(
         "Si",
         navigation_shape=(args.rows, args.cols),
@@ -84,7 +86,7 @@ def _demo(args: argparse.Namespace) -> int:
     rms = res.xmap.prop["dic_rms"]
     ok = rms <= FAILED_POINT_FACTOR * np.median(rms)
     for label, rot in (("start", sm.start_xmap.rotations[idx]), ("after", res.xmap.rotations)):
-        dev = synthetic.rotation_vectors(~truth[ok] * rot[ok])
+        dev = rotation_vectors(~truth[ok] * rot[ok])
         absolute = np.rad2deg(np.linalg.norm(dev, axis=1)).mean()
         relative = np.rad2deg(np.linalg.norm(dev - dev.mean(axis=0), axis=1)).mean()
         print(

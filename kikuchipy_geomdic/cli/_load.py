@@ -220,7 +220,7 @@ def load_master_pattern(spec: str, energy: float):
     import numpy as np
     from kikuchipy.signals import EBSDMasterPattern
 
-    from kikuchipy_geomdic.validation import synthetic
+    from kikuchipy_geomdic.validation import master_patterns
 
     if not np.isfinite(energy) or not 0 < energy <= 100:
         raise CLIError(f"--energy {energy} kV is not a beam energy")
@@ -233,7 +233,7 @@ def load_master_pattern(spec: str, energy: float):
                     f"the shipped dynamical {names[spec.lower()]} master pattern is for "
                     f"20 kV: using a kinematical one computed for {energy:g} kV"
                 )
-            return synthetic.master_pattern(names[spec.lower()], kind="auto", energy=energy)
+            return master_patterns.master_pattern(names[spec.lower()], kind="auto", energy=energy)
         raise CLIError(
             f"master pattern {spec!r} does not exist (give a file kikuchipy reads, or "
             f"one of {', '.join(MASTER_PATTERN_NAMES)})"

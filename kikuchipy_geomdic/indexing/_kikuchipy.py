@@ -22,7 +22,7 @@ from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.geometry import copy_detector
 from kikuchipy_geomdic.indexing._map_output import _merge
-from kikuchipy_geomdic.patterns.displacement import bin_pattern
+from kikuchipy_geomdic.patterns.preprocessing import bin_pattern
 
 
 def _reindex_kikuchipy(

@@ -114,9 +114,9 @@ def master_pattern_arrays(
 
     Examples
     --------
-    >>> from kikuchipy_geomdic.validation import synthetic
+    >>> from kikuchipy_geomdic.validation import master_patterns
     >>> from kikuchipy_geomdic.indexing.orientation import master_pattern_arrays
-    >>> mpa = master_pattern_arrays(synthetic.master_pattern("Si"), 20)
+    >>> mpa = master_pattern_arrays(master_patterns.master_pattern("Si"), 20)
     >>> mpa.upper.shape, mpa.upper.dtype.name, mpa.scale
     ((201, 201), 'float32', 100.0)
     """
@@ -274,8 +274,8 @@ def project_derivatives(
     >>> from kikuchipy.detectors import EBSDDetector
     >>> from orix.quaternion import Rotation
     >>> from kikuchipy_geomdic.indexing import orientation as ori
-    >>> from kikuchipy_geomdic.validation import synthetic
-    >>> arrays = ori.master_pattern_arrays(synthetic.master_pattern("Si"), 20)
+    >>> from kikuchipy_geomdic.validation import master_patterns
+    >>> arrays = ori.master_pattern_arrays(master_patterns.master_pattern("Si"), 20)
     >>> pc = np.array([[0.5, 0.3, 0.6]])
     >>> q = Rotation.from_euler(np.deg2rad([[10, 20, 30]])).data
     >>> om = ori.detector_matrix(EBSDDetector(sample_tilt=70))

@@ -101,7 +101,7 @@ def compare_variants(
     removal correlate neighbouring pixels, and a white-noise estimate was
     overconfident, measured). The *significance* of the call is
     ``min_b m_ab / se_ab``, a z-score: measured on BaTiO3 patterns of 120
-    px from ``synthetic.Camera``, a median 1.6 for right calls at 30
+    px from ``Camera``, a median 1.6 for right calls at 30
     counts per pixel and 3.8 at 150.
 
     Parameters
@@ -131,13 +131,14 @@ def compare_variants(
     >>> import numpy as np
     >>> from kikuchipy.detectors import EBSDDetector
     >>> from orix.quaternion import Rotation
-    >>> from kikuchipy_geomdic.validation import synthetic
+    >>> from kikuchipy_geomdic.indexing.variants import variant_operators
+    >>> from kikuchipy_geomdic.validation import master_patterns
     >>> from kikuchipy_geomdic.indexing.orientation import (
     ...     compare_variants, detector_matrix, master_pattern_arrays, project_patterns)
-    >>> mp = synthetic.master_pattern("BaTiO3")
+    >>> mp = master_patterns.master_pattern("BaTiO3")
     >>> det = EBSDDetector((60, 60), pc=[0.5, 0.3, 0.6], sample_tilt=70)
     >>> r = Rotation.from_euler(np.deg2rad([[10, 30, 50]]))
-    >>> flipped = synthetic.variant_operators()[1] * r
+    >>> flipped = variant_operators()[1] * r
     >>> pattern = project_patterns(flipped, det, mp)
     >>> q = np.stack([r.data, flipped.data], axis=1)
     >>> arrays = master_pattern_arrays(mp, 20)

@@ -66,7 +66,7 @@ from kikuchipy_geomdic.indexing._variant_comparison import (
     compare_variants,
     standardise,
 )
-from kikuchipy_geomdic.patterns.displacement import bin_pattern
+from kikuchipy_geomdic.patterns.preprocessing import bin_pattern
 
 __all__ = [
     "MasterPatternArrays",
@@ -261,10 +261,11 @@ def refine_patterns(
 
     >>> import numpy as np
     >>> from kikuchipy_geomdic.validation import synthetic
+    >>> from kikuchipy_geomdic.validation.orientations import perturb_rotations
     >>> from kikuchipy_geomdic.indexing.orientation import refine_patterns
     >>> sm = synthetic.synthetic_map("Si", (2, 2), shape=(60, 60), seed=0)
     >>> rng = np.random.default_rng(0)
-    >>> start = synthetic.perturb_rotations(sm.xmap.rotations, 2.0, rng)
+    >>> start = perturb_rotations(sm.xmap.rotations, 2.0, rng)
     >>> res = refine_patterns(sm.signal.data.reshape(4, 60, 60), start, sm.detector,
     ...                       sm.master_pattern, 20)
     >>> err = np.rad2deg((~sm.xmap.rotations * res.rotations).angle)

@@ -175,7 +175,7 @@ def reindex(
     pseudo_symmetry_ops
         Operators of a material's pseudo-symmetric variants (crystal
         frame, acting as ``op * rotation``, e.g.
-        ``synthetic.variant_operators()[1:]`` for BaTiO3). Every point is
+        ``variant_operators()[1:]`` for BaTiO3). Every point is
         refined from its start and from each variant of it, and the
         variant its pattern shows is kept (with ``method="geomdic"``:
         :func:`~kikuchipy_geomdic.indexing.orientation.compare_variants`, with a

@@ -106,7 +106,7 @@ def pseudo_symmetry_operators(spec: str | os.PathLike | Rotation | np.ndarray) -
     spec
         A material the package knows (:data:`PSEUDO_SYMMETRY_NAMES`, any
         case: "BaTiO3" gives
-        ``synthetic.variant_operators()[1:]``), a ``.npy`` or text file
+        ``variant_operators()[1:]``), a ``.npy`` or text file
         (``.txt``, ``.csv``: whitespace- or comma-separated, ``#``
         comments) of an (n, 4) array of unit quaternions (a, b, c, d), or
         such an array or a :class:`~orix.quaternion.Rotation`. Operators
@@ -252,7 +252,7 @@ def domain_labels(
     pseudo_symmetry_ops
         The variants' operators without the identity (crystal frame,
         ``op * rotation``), anything :func:`pseudo_symmetry_operators`
-        takes; default BaTiO3's, ``synthetic.variant_operators()[1:]``.
+        takes; default BaTiO3's, ``variant_operators()[1:]``.
         With the crystal's proper rotations they must form a group (for
         BaTiO3: the six variants times the four rotations about c are
         the 24 rotations of the cubic parent).

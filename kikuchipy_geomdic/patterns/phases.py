@@ -16,6 +16,8 @@ names differ ("Si", "silicon"). The rule used everywhere in the package
 :func:`check_phase` picks the map's phase to work with and checks it
 against the master pattern; :func:`replace_phase` gives a map the master
 pattern's phase, as kikuchipy's own refinement requires identical phases.
+
+Layer 3 (patterns): may import geometry, io, patterns.
 """
 
 from __future__ import annotations
@@ -169,12 +171,12 @@ def check_phase(
 
     Examples
     --------
-    >>> from kikuchipy_geomdic.validation import synthetic
+    >>> from kikuchipy_geomdic.validation import master_patterns, synthetic
     >>> from kikuchipy_geomdic.patterns.phases import check_phase
     >>> sm = synthetic.synthetic_map("Si", (2, 2), shape=(20, 20))
     >>> check_phase(sm.xmap, sm.master_pattern)
     0
-    >>> bto = synthetic.master_pattern("BaTiO3")
+    >>> bto = master_patterns.master_pattern("BaTiO3")
     >>> check_phase(sm.xmap, bto)
     Traceback (most recent call last):
     ...

@@ -5,6 +5,8 @@ builds the direction cosines of every pattern eagerly in float64 when the
 detector has one PC per pattern (13.8 GB for 100 x 100 patterns of
 240 x 240). Here the patterns are projected chunk by chunk so that memory
 stays bounded by *max_bytes*.
+
+Layer 3 (patterns): may import geometry, io, patterns.
 """
 
 from __future__ import annotations
@@ -77,15 +79,22 @@ def simulate_patterns(
 
     Examples
     --------
+    Three points of a map, one PC each, from kikuchipy's EMsoft nickel
+    master pattern; chunks of one pattern give the same patterns:
+
+    >>> import kikuchipy as kp
     >>> import numpy as np
     >>> from orix.quaternion import Rotation
-    >>> from kikuchipy.detectors import EBSDDetector
-    >>> from kikuchipy_geomdic.validation import synthetic
-    >>> from kikuchipy_geomdic.patterns import simulation
-    >>> mp = synthetic.master_pattern("Si", kind="kinematical", half_size=50)
-    >>> det = EBSDDetector((20, 20), pc=np.tile([0.5, 0.3, 0.6], (3, 1)))
-    >>> simulation.simulate_patterns(mp, Rotation.identity(3), det, 20).shape
-    (3, 20, 20)
+    >>> from kikuchipy_geomdic.geometry import MapGeometry
+    >>> from kikuchipy_geomdic.patterns.simulation import simulate_patterns
+    >>> mp = kp.data.nickel_ebsd_master_pattern_small(projection="lambert", hemisphere="both")
+    >>> geo = MapGeometry((0.5, 0.3, 0.6), (30, 40), 70, 8, (50, 50), (3, 3))
+    >>> det = geo.detector([[0, 0], [1, 1], [2, 2]])
+    >>> whole = simulate_patterns(mp, Rotation.identity(3), det, 20)
+    >>> whole.shape, whole.dtype.name
+    ((3, 30, 40), 'float32')
+    >>> np.array_equal(whole, simulate_patterns(mp, Rotation.identity(3), det, 20, max_bytes=1))
+    True
     """
     check_master_pattern(master_pattern)
     rotations = rotations.flatten()

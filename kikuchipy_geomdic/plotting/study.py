@@ -35,7 +35,7 @@ def plot_success(
     ----------
     table
         Study table (:attr:`~kikuchipy_geomdic.validation.study.PerturbationStudy.table`
-        or :func:`~kikuchipy_geomdic.validation.study.read_table`).
+        or :func:`~kikuchipy_geomdic.validation.tables.read_table`).
     limit
         Initial displacement (fraction of the width) drawn as a line: the
         paper's 4 %.
@@ -232,7 +232,7 @@ def plot_errors(
     coupling
         Coupling matrix of the six parameters
         (:attr:`~kikuchipy_geomdic.validation.study.PerturbationStudy.coupling`, or
-        :func:`~kikuchipy_geomdic.validation.study.sensitivities`).
+        :func:`~kikuchipy_geomdic.validation.scores.sensitivities`).
     threshold
         Coupling threshold.
     success

@@ -31,7 +31,7 @@ from kikuchipy_geomdic.geometry import MapGeometry
 from kikuchipy_geomdic.geometry.maps import flat_index
 from kikuchipy_geomdic.indexing.reindex import quiet, refine_orientations, stack_signal
 from kikuchipy_geomdic.validation import synthetic
-from kikuchipy_geomdic.validation.study import (
+from kikuchipy_geomdic.validation.scores import (
     _PC,
     _disorientation_from_mean,
     _geometry_errors,
@@ -283,41 +283,10 @@ def compare_methods(
             t0 = time.perf_counter()
             row: dict[str, Any] = {"method": method, "n_points": len(pts)}
             if method in configs:
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")
-                    res = refine_geometry_dic(
-                        *sm.start_inputs, points=pts, show_progressbar=False, **configs[method]
-                    )
-                row["time"] = time.perf_counter() - t0
-                geo = res.geometry
-                rot = res.xmap.rotations
-                ncc = float(np.mean(res.xmap.scores))
-                row["pc_scatter"] = 0.0
-                row["misorientation_rerefined"] = float(
-                    _misorientation(rot, true_rot_all[flat]).mean()
-                )
-                row["time_rerefine"] = 0.0
-                row["iterations"] = len(res.history)
+                geo, rot, ncc = _run_dic(row, sm, pts, configs[method], t0, true_rot_all, flat)
             elif method in ("nelder-mead", "differential-evolution"):
                 pw = pattern_wise_geometry(sm, pts, method, trust_region, de_kwargs, patterns=exp)
-                row["time"] = time.perf_counter() - t0
-                geo, pcs, rot = pw.geometry, pw.pcs, pw.xmap.rotations
-                ncc = float(np.mean(pw.xmap.scores))
-                # Scatter of pattern-wise PCs about the (true-angle) PC plane
-                plane = truth.pc_at(pts) - truth.pc_at(pts).mean(axis=0)
-                resid = pcs - pcs.mean(axis=0) - plane
-                row["pc_scatter"] = float(np.sqrt((resid**2).sum(axis=1).mean()))
-                t1 = time.perf_counter()
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")
-                    ref = refine_orientations(
-                        exp, rot, geo.detector(pts), sm.master_pattern, sm.energy, phase
-                    )
-                row["time_rerefine"] = time.perf_counter() - t1
-                row["misorientation_rerefined"] = float(
-                    _misorientation(ref.rotations, true_rot_all[flat]).mean()
-                )
-                row["iterations"] = 1
+                geo, rot, ncc = _rerefine(row, sm, pts, pw, t0, exp, phase, true_rot_all, flat)
             else:
                 raise ValueError(
                     f"Unknown method {method!r}: use 'nelder-mead', "
@@ -342,3 +311,40 @@ def compare_methods(
         r["extrapolated"] = r["n_points"] < n_max
         r["time_at_n"] = r["time_per_point"] * n_max if r["extrapolated"] else r["time"]
     return rows
+
+
+def _run_dic(row, sm, pts, config, t0, true_rot, flat):
+    """Run one DIC configuration, timed from *t0*; fill *row*."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = refine_geometry_dic(*sm.start_inputs, points=pts, show_progressbar=False, **config)
+    row["time"] = time.perf_counter() - t0
+    rot = res.xmap.rotations
+    row["pc_scatter"] = 0.0
+    row["misorientation_rerefined"] = float(_misorientation(rot, true_rot[flat]).mean())
+    row["time_rerefine"] = 0.0
+    row["iterations"] = len(res.history)
+    return res.geometry, rot, float(np.mean(res.xmap.scores))
+
+
+def _rerefine(row, sm, pts, pw, t0, patterns, phase, true_rot, flat):
+    """Time a pattern-wise calibration from *t0*, then re-refine its
+    orientations at the averaged geometry; fill *row*."""
+    row["time"] = time.perf_counter() - t0
+    geo, pcs, rot = pw.geometry, pw.pcs, pw.xmap.rotations
+    ncc = float(np.mean(pw.xmap.scores))
+    # Scatter of pattern-wise PCs about the (true-angle) PC plane
+    truth = sm.geometry
+    plane = truth.pc_at(pts) - truth.pc_at(pts).mean(axis=0)
+    resid = pcs - pcs.mean(axis=0) - plane
+    row["pc_scatter"] = float(np.sqrt((resid**2).sum(axis=1).mean()))
+    t1 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ref = refine_orientations(
+            patterns, rot, geo.detector(pts), sm.master_pattern, sm.energy, phase
+        )
+    row["time_rerefine"] = time.perf_counter() - t1
+    row["misorientation_rerefined"] = float(_misorientation(ref.rotations, true_rot[flat]).mean())
+    row["iterations"] = 1
+    return geo, rot, ncc

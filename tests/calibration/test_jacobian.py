@@ -6,6 +6,7 @@ from kikuchipy_geomdic.geometry import DEFAULT_PARAMETERS, DEFAULT_STEPS
 from kikuchipy_geomdic.patterns import displacement as dsp
 from kikuchipy_geomdic.patterns.simulation import simulate_patterns
 from kikuchipy_geomdic.validation import synthetic
+from kikuchipy_geomdic.validation.orientations import perturb_rotations
 
 
 @pytest.fixture(scope="module")
@@ -68,7 +69,7 @@ def test_rotation_columns_predict_measured_displacements(si_mp):
 
     geo = synthetic.default_geometry((1, 1), (96, 96))
     pts = np.zeros((4, 2))
-    rot = synthetic.perturb_rotations(Rotation.identity(4), 90, 3)  # arbitrary orientations
+    rot = perturb_rotations(Rotation.identity(4), 90, 3)  # arbitrary orientations
     w = np.deg2rad(0.3) * np.array([0.48, -0.8, 0.36])
     t = Rotation.from_axes_angles(w / np.linalg.norm(w), np.linalg.norm(w))
     det = geo.detector(pts)

@@ -21,7 +21,11 @@ from orix.crystal_map import CrystalMap, Phase
 
 import kikuchipy_geomdic as kg
 from kikuchipy_geomdic.calibration.refinement import calibration_points
-from kikuchipy_geomdic.validation import synthetic
+from kikuchipy_geomdic.geometry import rotation_vectors
+from kikuchipy_geomdic.indexing.variants import variant_operators
+from kikuchipy_geomdic.validation import master_patterns, synthetic
+from kikuchipy_geomdic.validation.camera import MODERATE
+from kikuchipy_geomdic.validation.orientations import common_rotation
 
 PC_TOL = 2e-4
 TILT_TOL = 0.05
@@ -93,7 +97,7 @@ def indexed_result(indexed):
 def test_indexed_start_pc_and_honest_errors(indexed, indexed_result):
     sm, res = indexed, indexed_result
     # The start really is biased: a common error far above s / sqrt(N)
-    assert synthetic.common_rotation(sm.start_xmap, sm.xmap).angle > 0.5
+    assert common_rotation(sm.start_xmap, sm.xmap).angle > 0.5
     assert _max_pc_error(res, sm) <= 1.5e-4
     assert np.abs(sm.start_detector.pc - sm.detector.pc).max() > 50 * 1.5e-4
     truth, start = sm.geometry.as_dict(), sm.start_geometry.as_dict()
@@ -128,10 +132,10 @@ def test_indexed_start_relative_orientations(indexed, indexed_result):
     # Orientations are at the noise floor once their common rotation,
     # which the angles left undetermined carry, is removed
     sm, res = indexed, indexed_result
-    dev = synthetic.rotation_vectors(~sm.xmap.rotations * res.xmap.rotations)
+    dev = rotation_vectors(~sm.xmap.rotations * res.xmap.rotations)
     relative = np.rad2deg(np.linalg.norm(dev - dev.mean(axis=0), axis=1))
     assert relative.mean() <= 0.05
-    start_dev = synthetic.rotation_vectors(~sm.xmap.rotations * sm.start_xmap.rotations)
+    start_dev = rotation_vectors(~sm.xmap.rotations * sm.start_xmap.rotations)
     start_rel = np.rad2deg(np.linalg.norm(start_dev - start_dev.mean(axis=0), axis=1))
     assert start_rel.mean() > 4 * relative.mean()
 
@@ -189,7 +193,7 @@ def test_uncentred_random_start_ten_patterns(si_mp):
 def test_simulator_mismatch(si_mp):
     # "Experimental" patterns from kikuchipy's EMsoft Ni master pattern,
     # calibrated with the ebsdsim one
-    emsoft = synthetic.master_pattern("Ni", kind="emsoft")
+    emsoft = master_patterns.master_pattern("Ni", kind="emsoft")
     sm = synthetic.synthetic_map(
         emsoft,
         (6, 6),
@@ -200,7 +204,7 @@ def test_simulator_mismatch(si_mp):
         start="uncentred",
         perturbation={"pcx": 0.01, "pcy": -0.008, "pcz": 0.008},
     )
-    mp = synthetic.master_pattern("Ni")
+    mp = master_patterns.master_pattern("Ni")
     res = sm.signal.refine_geometry_dic(
         sm.start_xmap,
         sm.start_detector,
@@ -223,7 +227,7 @@ def blurred():
     """Moderate noise and a detector blur of 0.6 px, patterns from the
     EMsoft Ni master pattern (the blur is what the full-field stage must
     model: unmodelled, it moved pcz by 11 standard errors)."""
-    emsoft = synthetic.master_pattern("Ni", kind="emsoft")
+    emsoft = master_patterns.master_pattern("Ni", kind="emsoft")
     return synthetic.synthetic_map(
         emsoft, (7, 7), shape=(80, 80), seed=1, dose=150, blur=0.6, start="uncentred",
         perturbation={"pcx": 0.01, "pcy": -0.008, "pcz": 0.008},
@@ -329,7 +333,7 @@ def realistic():
     by kikuchipy 2 % off (what the benchmarks page measures on three seeds,
     ``bench_realistic.py``)."""
     return synthetic.synthetic_map(
-        "Ni", (11, 11), shape=(96, 96), seed=0, camera=synthetic.MODERATE, simulator="emsoft",
+        "Ni", (11, 11), shape=(96, 96), seed=0, camera=MODERATE, simulator="emsoft",
         orientation_error=1.0, start="indexed",
     )  # fmt: skip
 
@@ -648,9 +652,9 @@ def test_batio3_wrong_variants_corrected(kind):
     # the joint solver tells the variants apart once the geometry is close
     from orix.quaternion import Rotation
 
-    mp = synthetic.master_pattern("BaTiO3", kind=kind)
+    mp = master_patterns.master_pattern("BaTiO3", kind=kind)
     sm = synthetic.synthetic_map(mp, (6, 6), orientations="variants", shape=(60, 60), seed=0)
-    ops = synthetic.variant_operators()
+    ops = variant_operators()
     wrong = np.random.default_rng(0).random(36) < 0.3
     r = sm.start_xmap.rotations.data.copy()
     r[wrong] = (ops[2] * sm.start_xmap.rotations[wrong]).data

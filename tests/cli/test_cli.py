@@ -32,6 +32,7 @@ from orix.crystal_map import CrystalMap
 from orix.quaternion import Rotation
 
 from kikuchipy_geomdic import cli
+from kikuchipy_geomdic.indexing.variants import VARIANT_NAMES, variant_operators
 from kikuchipy_geomdic.io import conventions as cv
 from kikuchipy_geomdic.io import summary as su
 from kikuchipy_geomdic.validation import synthetic
@@ -1043,7 +1044,7 @@ def bto_files(tmp_path_factory, bto_mp):
     sm = synthetic.synthetic_map(
         bto_mp, BTO_NAV, "stripes", shape=(60, 60), dose=300, seed=1, perturbation={}
     )
-    ops = synthetic.variant_operators()
+    ops = variant_operators()
     k = np.random.default_rng(0).integers(0, 6, sm.xmap.size)
     start = CrystalMap(
         rotations=ops[k] * sm.start_xmap.rotations,
@@ -1099,7 +1100,7 @@ def test_reindex_writes_domains(tmp_path, bto_files, capsys):
         np.testing.assert_allclose(ang.prop[key], xmap.prop[key], atol=1e-5)
     summary = json.loads((out / "reindex.json").read_text())
     domains = summary["result"]["domains"]
-    assert list(domains) == list(synthetic.VARIANT_NAMES)
+    assert list(domains) == list(VARIANT_NAMES)
     assert sum(domains.values()) == truth.size and domains["+z"] == (truth == 0).sum()
     assert summary["pseudo_symmetry"]["source"] == "BaTiO3"
     import matplotlib.pyplot as plt
@@ -1124,7 +1125,7 @@ def test_reindex_writes_domains(tmp_path, bto_files, capsys):
 def test_refine_passes_pseudo_symmetry(tmp_path, bto_files, monkeypatch, capsys):
     d, _ = bto_files
     seen = _stop_at_refinement(monkeypatch)
-    ops = synthetic.variant_operators()[1:]
+    ops = variant_operators()[1:]
     for spec in ("batio3", d / "ops.txt"):
         code, _, err = run(
             _bto_argv("refine", d, tmp_path / "o", "--pseudo-symmetry", spec), capsys
@@ -1155,7 +1156,7 @@ PSEUDO_SYMMETRY_ERRORS = {
 @pytest.mark.parametrize("command", ["refine", "reindex"])
 def test_pseudo_symmetry_errors(case, command, data, tmp_path, capsys):
     d, _ = data
-    ops = synthetic.variant_operators().data
+    ops = variant_operators().data
     np.savetxt(tmp_path / "three.txt", ops[1:, :3])
     np.save(tmp_path / "long.npy", 2 * ops[1:])
     np.save(tmp_path / "identity.npy", ops)

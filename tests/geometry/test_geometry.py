@@ -32,7 +32,7 @@ from kikuchipy_geomdic.geometry import (
     sample_to_detector_matrix,
 )
 from kikuchipy_geomdic.patterns import simulation
-from kikuchipy_geomdic.validation import synthetic
+from kikuchipy_geomdic.validation import master_patterns
 
 ANGLE_NAMES = ("tilt", "azimuthal", "sample_tilt", "twist")
 
@@ -269,7 +269,7 @@ def test_sample_to_detector_matrix_is_kikuchipys():
 
 @pytest.fixture(scope="module")
 def mp():
-    return synthetic.master_pattern("Si", kind="dynamical")
+    return master_patterns.master_pattern("Si", kind="dynamical")
 
 
 @pytest.fixture(scope="module")

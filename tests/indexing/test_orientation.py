@@ -16,8 +16,10 @@ from orix.quaternion import Rotation
 from kikuchipy_geomdic.indexing import orientation as ori
 from kikuchipy_geomdic.indexing._gauss_newton import _quat_step
 from kikuchipy_geomdic.indexing._lambert import _direction_cosines, _project
+from kikuchipy_geomdic.indexing.variants import variant_operators
 from kikuchipy_geomdic.patterns.simulation import simulate_patterns
 from kikuchipy_geomdic.validation import synthetic
+from kikuchipy_geomdic.validation.orientations import perturb_rotations
 
 
 @pytest.fixture(scope="module")
@@ -99,7 +101,7 @@ def test_refine_recovers_truth_from_starts_degrees_off(polycrystal):
     sm = polycrystal
     patterns = sm.signal.data.reshape(-1, 120, 120)
     rng = np.random.default_rng(0)
-    start = synthetic.perturb_rotations(sm.xmap.rotations, 2.0, rng, centred=False)
+    start = perturb_rotations(sm.xmap.rotations, 2.0, rng, centred=False)
     assert misorientation(start, sm.xmap.rotations).mean() > 1.5  # can fail
     res = ori.refine_patterns(patterns, start, sm.detector, sm.master_pattern, 20)
     err = misorientation(res.rotations, sm.xmap.rotations)
@@ -116,7 +118,7 @@ def test_same_optimum_as_kikuchipy(polycrystal):
     sm = polycrystal
     patterns = sm.signal.data.reshape(-1, 120, 120)[:8]
     rng = np.random.default_rng(1)
-    start = synthetic.perturb_rotations(sm.xmap.rotations[:8], 0.5, rng)
+    start = perturb_rotations(sm.xmap.rotations[:8], 0.5, rng)
     det = sm.detector.deepcopy()
     det.pc = det.pc.reshape(-1, 3)[:8]
     ours = ori.refine_patterns(patterns, start, det, sm.master_pattern, 20)
@@ -200,7 +202,7 @@ def test_compare_variants_picks_the_shown_variant_under_noise(bto_mp):
     for the 180 deg partner."""
     det = EBSDDetector((60, 60), pc=[0.5, 0.3, 0.6], sample_tilt=70)
     r = Rotation.from_euler(np.deg2rad([[10, 30, 50]]))
-    ops = synthetic.variant_operators()
+    ops = variant_operators()
     q = np.stack([(op * r).data.reshape(4) for op in ops])[None]
     arrays = ori.master_pattern_arrays(bto_mp, 20)
     rng = np.random.default_rng(0)
@@ -223,7 +225,7 @@ def test_variant_significance_is_a_calibrated_z_score(bto_mp):
     signal gives calls of significance within the noise."""
     det = EBSDDetector((60, 60), pc=[0.5, 0.3, 0.6], sample_tilt=70)
     r = Rotation.from_euler(np.deg2rad([[10, 30, 50]]))
-    ops = synthetic.variant_operators()
+    ops = variant_operators()
     q = np.stack([(ops[k] * r).data.reshape(4) for k in (0, 1)])[None]
     arrays = ori.master_pattern_arrays(bto_mp, 20)
     clean = ori.standardise(ori.project_patterns(r, det, bto_mp).reshape(1, -1))

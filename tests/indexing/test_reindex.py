@@ -24,8 +24,11 @@ from orix.quaternion import Rotation
 from kikuchipy_geomdic.calibration.refinement import refine_geometry_dic
 from kikuchipy_geomdic.geometry.maps import flat_index, navigation_shape
 from kikuchipy_geomdic.indexing.reindex import VARIANT_SIGNIFICANCE, reindex, usable_points
+from kikuchipy_geomdic.indexing.variants import VARIANT_NAMES, variant_operators
 from kikuchipy_geomdic.patterns.phases import check_phase, phases_match, replace_phase
 from kikuchipy_geomdic.validation import synthetic
+from kikuchipy_geomdic.validation.camera import Camera
+from kikuchipy_geomdic.validation.orientations import perturb_rotations
 
 NAV = (4, 5)
 #: Mean misorientation (deg) to the truth after reindexing at the true
@@ -410,7 +413,7 @@ def test_misindexed_points_are_reseeded_or_flagged(si_mp):
         si_mp, (10, 10), orientations="grains", shape=(60, 60), dose=300, seed=2
     )
     rng = np.random.default_rng(0)
-    q = synthetic.perturb_rotations(sm.xmap.rotations, 1.0, rng).data.copy()
+    q = perturb_rotations(sm.xmap.rotations, 1.0, rng).data.copy()
     wrong = rng.choice(100, 10, replace=False)
     q[wrong] = Rotation(rng.normal(size=(10, 4))).data  # uniformly random, normalised
     start = _map_like(sm.xmap, quats=q)
@@ -450,7 +453,7 @@ def test_pseudo_symmetric_variants_told_apart(bto_mp):
     )  # fmt: skip
     truth = sm.xmap.prop["variant"]
     assert set(np.unique(truth)) >= {0, 1, 2}
-    ops = synthetic.variant_operators()[1:]
+    ops = variant_operators()[1:]
     out = reindex(
         sm.signal, sm.start_xmap, sm.detector, bto_mp, 20, pseudo_symmetry_ops=ops,
         show_progressbar=False,
@@ -465,7 +468,7 @@ def test_pseudo_symmetric_variants_told_apart(bto_mp):
     # The paper's Fig. 7 view of it, and a map without variants refused
     from kikuchipy_geomdic.plotting import plot_variants
 
-    fig = plot_variants(out, truth=truth, names=synthetic.VARIANT_NAMES)
+    fig = plot_variants(out, truth=truth, names=VARIANT_NAMES)
     assert fig.axes[0].get_title() == f"variant: {truth.size}/{truth.size} right"
     with pytest.raises(ValueError, match="reindex it with pseudo_symmetry_ops"):
         plot_variants(sm.xmap)
@@ -484,7 +487,7 @@ def test_calibrate_then_reindex_stripe_domains(bto_mp):
         perturbation={"pcx": off, "pcy": -off, "pcz": off, "tilt": 0.5, "azimuthal": 0.3},
     )  # fmt: skip
     truth = sm.xmap.prop["variant"]
-    ops = synthetic.variant_operators()[1:]
+    ops = variant_operators()[1:]
     res = refine_geometry_dic(
         *sm.start_inputs, pseudo_symmetry_ops=ops, orientation_prior=synthetic.centred_prior(0.3),
         points=25, show_progressbar=False,
@@ -524,14 +527,14 @@ def user_stripes(bto_mp):
     with dask.config.set(scheduler="synchronous"):
         return synthetic.synthetic_map(
             bto_mp, (9, 9), orientations="stripes", shape=(96, 96), seed=3, start="indexed",
-            orientation_error=1.0, camera=synthetic.Camera(dose=150),
+            orientation_error=1.0, camera=Camera(dose=150),
         )  # fmt: skip
 
 
 def _absolute_variant(rotations: Rotation, truth: CrystalMap) -> tuple[np.ndarray, np.ndarray]:
     """The nearest variant (with the crystal's symmetry) of each point's
     true parent, and the angle (deg) to it."""
-    ops = synthetic.variant_operators()
+    ops = variant_operators()
     sym = Rotation(truth.phases[0].point_group.proper_subgroup).flatten()
     parent = ~ops[truth.prop["variant"]] * truth.rotations.flatten()
     r = Rotation(rotations).flatten()
@@ -567,7 +570,7 @@ def test_user_starts_reindexed_at_true_and_tilted_detector(user_stripes, azimuth
     # The start is a user's: mostly in another variant, some far off
     assert np.mean(start_label != truth) > 0.5 and np.percentile(start_angle, 90) > 3
     det = copy_detector(sm.detector, azimuthal=sm.detector.azimuthal + azimuthal_error)
-    ops = synthetic.variant_operators()[1:]
+    ops = variant_operators()[1:]
     out = reindex(
         sm.signal, sm.start_xmap, det, sm.master_pattern, sm.energy, pseudo_symmetry_ops=ops,
         show_progressbar=False,
@@ -596,7 +599,7 @@ def test_user_starts_reindexed_at_true_and_tilted_detector(user_stripes, azimuth
     assert conv.mean() >= 0.3
     # The variant is counted from each point's own start, also where a
     # neighbour's seed gave the result
-    ops_all = synthetic.variant_operators()
+    ops_all = variant_operators()
     from_start, _ = _absolute_variant(ops_all[out.variant] * sm.start_xmap.rotations, sm.xmap)
     near = start_angle < 5
     np.testing.assert_array_equal(from_start[near], label[near])
@@ -606,7 +609,7 @@ def test_reseeding_never_lowers_a_score(user_stripes):
     """A neighbour's seed replaces a point's own result only where it
     scores better on the point's own pattern."""
     sm = user_stripes
-    ops = synthetic.variant_operators()[1:]
+    ops = variant_operators()[1:]
     kw = dict(pseudo_symmetry_ops=ops, show_progressbar=False)
     args = (sm.signal, sm.start_xmap, sm.detector, sm.master_pattern, sm.energy)
     local = reindex(*args, reseed=False, **kw)

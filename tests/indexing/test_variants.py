@@ -15,14 +15,17 @@ from orix.quaternion import Orientation, Rotation, symmetry
 from orix.vector import Vector3d
 
 from kikuchipy_geomdic.indexing.variants import (
+    VARIANT_NAMES,
     check_pseudo_symmetry,
     domain_labels,
     pseudo_symmetry_operators,
     variant_names,
+    variant_operators,
 )
 from kikuchipy_geomdic.validation import synthetic
+from kikuchipy_geomdic.validation.orientations import STRIPE_VARIANTS
 
-OPS = synthetic.variant_operators()
+OPS = variant_operators()
 
 
 def _stripes(seed: int, nav=(24, 24), scatter=1.0):
@@ -72,7 +75,7 @@ def test_labels_of_the_truth(seed):
 
     lab = domain_labels(rot, symmetry=pg)
     np.testing.assert_array_equal(lab.label, truth)
-    assert lab.chosen and lab.names == synthetic.VARIANT_NAMES
+    assert lab.chosen and lab.names == VARIANT_NAMES
     np.testing.assert_array_equal(domain_labels(Orientation(rot, symmetry=pg)).label, truth)
     xmap = _map_like(sm.xmap, rot)
     lab_map = domain_labels(xmap)
@@ -83,9 +86,7 @@ def test_labels_of_the_truth(seed):
     true_parent = Orientation(_true_parent(sm) * common, symmetry=pg)
     assert parent.angle_with(true_parent, degrees=True)[0] < 0.2
     assert np.nanmax(lab.deviation) < 4  # 1 deg RMS scatter
-    assert lab.counts == {
-        n: int((truth == k).sum()) for k, n in enumerate(synthetic.VARIANT_NAMES)
-    }
+    assert lab.counts == {n: int((truth == k).sum()) for k, n in enumerate(VARIANT_NAMES)}
 
 
 @pytest.mark.parametrize("seed", [0, 3])
@@ -188,7 +189,7 @@ def test_pseudo_symmetry_operators(tmp_path):
     (tmp_path / "ops.csv").write_text("\n".join(",".join(map(str, r)) for r in ops.data))
     for name in ("ops.npy", "ops.txt", "ops.csv"):
         np.testing.assert_allclose(pseudo_symmetry_operators(tmp_path / name).data, ops.data)
-    assert variant_names(tmp_path / "ops.npy") == synthetic.VARIANT_NAMES
+    assert variant_names(tmp_path / "ops.npy") == VARIANT_NAMES
     assert variant_names(ops[:2]) == ("0", "1", "2")
 
     np.save(tmp_path / "three.npy", ops.data[:, :3])
@@ -252,7 +253,7 @@ def _reindexed_like(nav=(6, 8)):
     domains in stripes, random relative variants, two flagged points."""
     n = nav[0] * nav[1]
     rng = np.random.default_rng(0)
-    domain = np.array(synthetic.STRIPE_VARIANTS)[(np.indices(nav).sum(axis=0) % 4).ravel()]
+    domain = np.array(STRIPE_VARIANTS)[(np.indices(nav).sum(axis=0) % 4).ravel()]
     converged = np.ones(n, dtype=np.int8)
     converged[[3, 17]] = 0
     prop = {
@@ -287,7 +288,7 @@ def test_plot_variants_draws_the_domains():
     assert ax_margin.get_title() == "cross-variant margin"
     assert "confidence" in ax_conf.get_title() and "margin" in ax_hist.get_title()
     legend = [t.get_text() for t in ax_map.get_legend().get_texts()]
-    assert legend == [*synthetic.VARIANT_NAMES, "wrong", "flagged"]
+    assert legend == [*VARIANT_NAMES, "wrong", "flagged"]
     assert ax_map.get_legend().get_title().get_text() == "c axis"
     # The map shows the absolute domains in the variants' colours
     img = ax_map.get_images()[0]

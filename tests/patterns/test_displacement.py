@@ -5,9 +5,9 @@ geometry change it says where every pixel of pattern A lands in pattern
 B. The measured ROI displacement u_(r,i) (Eq. 1) is compared with the
 true displacement averaged exactly as the measurement is: at the same
 vectors' A endpoints (the points where LK measured them), with the same
-ROI membership rule (:func:`roi_average` with ``values=`` the truth). The
-error is the RMS over patterns and ROIs with vectors of the length of
-u_measured - u_true, in pixels.
+ROI membership rule (:func:`~kikuchipy_geomdic.patterns.roi.roi_average`
+with ``values=`` the truth). The error is the RMS over patterns and ROIs
+with vectors of the length of u_measured - u_true, in pixels.
 
 Patterns are 120 x 120 px simulated from the dynamical Si master pattern
 at PC (0.5, 0.3, 0.6), sample tilt 70 deg, 20 kV.
@@ -27,7 +27,9 @@ from scipy import ndimage
 
 from kikuchipy_geomdic.geometry import forward_map
 from kikuchipy_geomdic.patterns import displacement as dsp
+from kikuchipy_geomdic.patterns.roi import roi_average
 from kikuchipy_geomdic.patterns.simulation import simulate_patterns
+from kikuchipy_geomdic.patterns.vectors import resolve_backend
 
 SHAPE = (120, 120)
 PC_A = (0.5, 0.3, 0.6)
@@ -89,9 +91,7 @@ def _true_u(field, pc_b, angles_b, pc_a=PC_A, angles_a=ANGLES_A):
     for i, v in enumerate(field.vectors):
         xb, yb = forward_map(v[:, 0], v[:, 1], pc_a, angles_a, pc_b, angles_b, SHAPE)
         truth = np.stack([xb - v[:, 0], yb - v[:, 1]], axis=1)
-        u[i], counts, _ = dsp.roi_average(
-            v[:, :2], v[:, 2:], field.shape, field.rois, values=truth
-        )
+        u[i], counts, _ = roi_average(v[:, :2], v[:, 2:], field.shape, field.rois, values=truth)
         assert_array_equal(counts, field.counts[i])
     return u
 
@@ -133,75 +133,8 @@ def measured(patterns):
 
 
 # --------------------------------------------------------------------- #
-# ROI grid, Eq. 1, Eq. 2, Eq. 8
+# The field: Eqs. 2, 3 and 8
 # --------------------------------------------------------------------- #
-
-
-@pytest.mark.parametrize("shape, rois", [((120, 120), (8, 8)), ((10, 13), (3, 4))])
-def test_roi_grid_partitions_pixels(shape, rois):
-    row_edges, col_edges = dsp.roi_edges(shape, rois)
-    assert (row_edges[0], row_edges[-1], col_edges[0], col_edges[-1]) == (0, shape[0], 0, shape[1])
-    # ROI sizes differ by at most one pixel
-    assert np.ptp(np.diff(row_edges)) <= 1 and np.ptp(np.diff(col_edges)) <= 1
-    # Every pixel centre is in exactly the ROI whose edges hold it
-    j, i = np.indices(shape)
-    idx = dsp.roi_index(i, j, shape, rois)
-    expected = np.zeros(shape, int)
-    for r in range(rois[0]):
-        for c in range(rois[1]):
-            expected[row_edges[r] : row_edges[r + 1], col_edges[c] : col_edges[c + 1]] = (
-                r * rois[1] + c
-            )
-    assert_array_equal(idx, expected)
-    assert_array_equal(
-        np.bincount(idx.ravel()), np.outer(np.diff(row_edges), np.diff(col_edges)).ravel()
-    )
-    # Centres are the mean pixel coordinate of each ROI
-    centres = dsp.roi_centres(shape, rois)
-    for r in range(rois[0] * rois[1]):
-        assert_allclose(centres[r], [i[idx == r].mean(), j[idx == r].mean()])
-
-
-def test_roi_index_edges_and_outside():
-    # Pixel centres are integers: the edge between columns 14 and 15 is
-    # at x = 14.5; outside the pattern and NaN give -1
-    x = np.array([14.49, 14.5, -0.5, -0.51, 119.49, 119.5, np.nan])
-    y = np.zeros_like(x)
-    assert_array_equal(dsp.roi_index(x, y, SHAPE, (8, 8)), [0, 1, 0, -1, 7, -1, -1])
-    assert_array_equal(dsp.roi_index([0, 0], [15.0, 119.0], SHAPE, (8, 8)), [8, 56])
-
-
-def test_roi_average_counts_crossing_vector_in_both_rois():
-    # 2 x 2 ROIs of 10 px; three vectors in ROI 0, one crossing to ROI 1,
-    # one leaving the pattern (counts only where it starts)
-    a = np.array([[2.0, 2.0], [4.0, 3.0], [6.0, 8.0], [8.0, 2.0], [1.0, 15.0]])
-    b = np.array([[3.0, 2.0], [5.0, 4.0], [7.0, 8.0], [11.0, 3.0], [1.0, 25.0]])
-    u, counts, positions = dsp.roi_average(a, b, (20, 20), (2, 2))
-    assert_array_equal(counts, [4, 1, 1, 0])
-    assert_allclose(u[0], [(1 + 1 + 1 + 3) / 4, (0 + 1 + 0 + 1) / 4])
-    assert_allclose(u[1], [3, 1])
-    assert_allclose(u[2], [0, 10])
-    assert_allclose(u[3], [0, 0])
-    assert_allclose(positions[0], a[:4].mean(axis=0))
-    assert_allclose(positions[1], a[3])
-    assert_allclose(positions[3], dsp.roi_centres((20, 20), (2, 2))[3])
-    # Other values averaged with the same membership
-    u2, c2, _ = dsp.roi_average(a, b, (20, 20), (2, 2), values=np.ones((5, 2)))
-    assert_array_equal(c2, counts)
-    assert_allclose(u2[:3], 1.0)
-
-
-def test_roi_weights_eq8_by_hand():
-    # Non-zero counts sorted: 2, 8, then 10 x 8, then 20 (11 values):
-    # NumPy's 90th percentile sits at index 9, so c90 = 10
-    counts = np.array([0, 2, 8, 10, 10, 10, 10, 10, 10, 10, 10, 20])
-    w = dsp.roi_weights(counts)
-    assert_allclose(w, [0, np.sqrt(0.2), np.sqrt(0.8)] + [1.0] * 9)
-    assert_array_equal(dsp.roi_weights(np.zeros(4)), np.zeros(4))
-    # One non-zero count: c90 is that count
-    assert_allclose(dsp.roi_weights([0, 3, 0]), [0, 1, 0])
-    with pytest.raises(ValueError, match="non-negative"):
-        dsp.roi_weights([1, -1])
 
 
 def test_field_averages_over_n_eq2_and_orders_b_eq3():
@@ -220,51 +153,6 @@ def test_field_averages_over_n_eq2_and_orders_b_eq3():
     sub = field.select([1])
     assert sub.n_patterns == 1
     assert_allclose(sub.mean, [[5.0, 6.0], [0.0, 0.0]])
-
-
-def test_bin_pattern_centres_match_coordinate_rule():
-    # A ramp equal to the x coordinate, binned, equals the full-resolution
-    # coordinate of each binned pixel centre: k b + (b - 1) / 2
-    for b in (2, 3, 4):
-        ramp = np.tile(np.arange(121.0), (7, 1))
-        binned = dsp.bin_pattern(ramp, b)
-        k = np.arange(121 // b)
-        assert binned.shape == (7 // b, 121 // b)
-        assert_allclose(binned[0], k * b + (b - 1) / 2)
-
-
-def test_filter_vectors_rules():
-    a = np.array([[5.0, 5], [6, 5], [5, 6], [6, 6], [5, 7], [50, 50]])
-    v = np.array([[1, 0], [1, 0], [1.05, 0], [1, 0.05], [3, 0], [30, 0]])
-    b = a + v
-    # 10 px ROIs: vector 5 spans 3 ROIs, vector 4 is a 2 px outlier
-    assert_array_equal(dsp.filter_vectors(a, b, (100, 100), (10, 10)), [1, 1, 1, 1, 0, 0])
-    assert_array_equal(
-        dsp.filter_vectors(a, b, (100, 100), (10, 10), max_roi_crossings=3, robust=None),
-        [1, 1, 1, 1, 1, 1],
-    )
-    assert_array_equal(
-        dsp.filter_vectors(a, b, (100, 100), (10, 10), robust=None), [1, 1, 1, 1, 1, 0]
-    )
-    # An end outside the pattern is always dropped
-    assert_array_equal(
-        dsp.filter_vectors([[95.0, 5]], [[101.0, 5]], (100, 100), (10, 10), None, None), [0]
-    )
-
-
-def test_lk_status_flags_fail_on_flat_windows():
-    # A flat region has no gradient: both trackers must flag it
-    rng = np.random.default_rng(0)
-    img = ndimage.gaussian_filter(rng.random((60, 60)), 2)
-    img[:, :30] = img.mean()
-    img = (img - img.mean()) / img.std()
-    pts = np.array([[12.0, 30.0], [45.0, 30.0]])
-    _, ok = dsp._track_numpy(img, img, pts, 11, 2)
-    assert_array_equal(ok, [False, True])
-    cv2 = pytest.importorskip("cv2")
-    a8, _ = dsp._to_uint8(img, img)
-    _, ok = dsp._track_opencv(cv2, a8, a8, pts, 11, 2)
-    assert_array_equal(ok, [False, True])
 
 
 # --------------------------------------------------------------------- #
@@ -314,23 +202,6 @@ def test_binning_reports_full_resolution(patterns):
     # resolution (errors double with the pixel size): measured 0.08 px
     assert _rms(field, _true_u(field, *CASES["pcz"])) < 0.1
     assert np.abs(field.mean).max() > 1
-
-
-@pytest.mark.parametrize("dic", ["opencv", "skimage"])
-def test_binned_coordinates_have_no_offset(dic):
-    # A 4 % dilation about the centre: a position error e shows as a mean
-    # displacement error of 0.04 e. Forgetting the (b - 1) / 2 offset of
-    # binning 3 would give -0.04 px; measured below 0.01
-    c, s = 89.5, 1.04
-    errors = []
-    for seed in range(4):
-        a = ndimage.gaussian_filter(np.random.default_rng(seed).random((180, 180)), 3)
-        b = ndimage.affine_transform(a, [1 / s, 1 / s], offset=c - c / s, order=3, mode="nearest")
-        xy_a, xy_b = dsp.pattern_vectors(a, b, rois=(6, 6), binning=3, dic=dic)
-        errors.append(xy_b - xy_a - (s - 1) * (xy_a - c))
-    errors = np.concatenate(errors)
-    assert len(errors) > 250
-    assert np.abs(errors.mean(axis=0)).max() < 0.015
 
 
 def test_paper_mode_without_extra_outlier_tests(patterns, measured):
@@ -474,21 +345,14 @@ def test_distributed_client_gives_identical_results(patterns):
 def test_auto_falls_back_to_skimage_without_opencv(patterns, monkeypatch):
     a, b = patterns
     monkeypatch.setitem(sys.modules, "cv2", None)  # import cv2 now fails
-    assert dsp.resolve_backend("auto") == "skimage"
+    assert resolve_backend("auto") == "skimage"
     with pytest.raises(ImportError, match="opencv-python-headless"):
-        dsp.resolve_backend("opencv")
+        resolve_backend("opencv")
     with pytest.raises(ImportError, match="OpenCV"):
         dsp.measure_displacements(a[:1], b["pcz"][:1], dic="opencv")
     field = dsp.measure_displacements(a[:2], b["pcz"][:2], dic="auto", seed=0, keep_vectors=True)
     assert field.backend == "skimage"
     assert _rms(field, _true_u(field, *CASES["pcz"])) <= TOL_CLEAN
-
-
-def test_auto_prefers_opencv():
-    pytest.importorskip("cv2")
-    assert dsp.resolve_backend("auto") == "opencv"
-    with pytest.raises(ValueError, match="dic must be"):
-        dsp.resolve_backend("cv2")
 
 
 # --------------------------------------------------------------------- #

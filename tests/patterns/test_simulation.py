@@ -8,7 +8,7 @@ from kikuchipy.signals import EBSDMasterPattern
 from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.patterns import simulation
-from kikuchipy_geomdic.validation import synthetic
+from kikuchipy_geomdic.validation import master_patterns
 
 SHAPE = (20, 24)
 #: Bytes of direction cosines per pattern, as simulate_patterns counts them
@@ -17,7 +17,7 @@ PER_PATTERN = SHAPE[0] * SHAPE[1] * 3 * 8
 
 @pytest.fixture(scope="module")
 def mp():
-    return synthetic.master_pattern("Si", kind="kinematical", half_size=50)
+    return master_patterns.master_pattern("Si", kind="kinematical", half_size=50)
 
 
 def _rotations(n=5):

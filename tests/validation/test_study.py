@@ -9,8 +9,8 @@ import matplotlib
 import numpy as np
 import pytest
 
+from kikuchipy_geomdic.validation import scores, synthetic, tables
 from kikuchipy_geomdic.validation import study as st
-from kikuchipy_geomdic.validation import synthetic
 
 NAV = (4, 4)
 SHAPE = (48, 48)
@@ -87,7 +87,7 @@ def test_summary_plots_and_csv(study, tmp_path):
     assert s["success_below_4%"] == "9/9"
     path = tmp_path / "study.csv"
     study.save(path)
-    back = st.read_table(path)
+    back = tables.read_table(path)
     assert back.dtype == study.table.dtype
     np.testing.assert_allclose(back["final_ncc"], study.table["final_ncc"], rtol=1e-6)
     assert back["success"].tolist() == study.table["success"].tolist()
@@ -99,7 +99,7 @@ def test_summary_plots_and_csv(study, tmp_path):
         study.plot_normalised_errors(("pcz", "tilt")),
     ):
         assert isinstance(fig, matplotlib.figure.Figure)
-    assert "| runs |" in st.format_table([s])
+    assert "| runs |" in tables.format_table([s])
 
 
 def test_model_displacement_matches_measured(si_mp):
@@ -113,9 +113,9 @@ def test_model_displacement_matches_measured(si_mp):
         si_mp, (3, 3), geometry=geo, perturbation={}, orientation_error=0, shape=(60, 60), seed=2
     )
     pts = np.stack([a.ravel() for a in np.indices((3, 3))], axis=1)
-    model, measured = st.eq2_displacement(si_mp, sm.xmap.rotations, geo, other, pts)
+    model, measured = scores.eq2_displacement(si_mp, sm.xmap.rotations, geo, other, pts)
     assert model == pytest.approx(measured, rel=0.1)
-    assert st.mean_displacement(geo, other, pts) > model
+    assert scores.mean_displacement(geo, other, pts) > model
 
 
 def test_bad_pair_raises():

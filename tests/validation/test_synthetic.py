@@ -4,8 +4,15 @@ from kikuchipy.signals import EBSDMasterPattern
 from orix.quaternion import Rotation
 from orix.vector import Vector3d
 
+from kikuchipy_geomdic.geometry import rotation_vectors
+from kikuchipy_geomdic.indexing.variants import variant_operators
 from kikuchipy_geomdic.patterns.simulation import simulate_patterns
-from kikuchipy_geomdic.validation import synthetic
+from kikuchipy_geomdic.validation import master_patterns, synthetic
+from kikuchipy_geomdic.validation.orientations import (
+    STRIPE_VARIANTS,
+    common_rotation,
+    perturb_rotations,
+)
 
 
 @pytest.fixture(scope="module")
@@ -13,85 +20,9 @@ def clean(si_mp):
     return synthetic.synthetic_map(si_mp, (4, 5), shape=(48, 48), seed=3)
 
 
-class TestMasterPattern:
-    @pytest.mark.parametrize("name", ["Si", "BaTiO3", "Ni"])
-    @pytest.mark.parametrize("kind", ["dynamical", "kinematical"])
-    def test_lambert_both(self, name, kind):
-        mp = synthetic.master_pattern(name, kind=kind, half_size=40)
-        assert mp.projection == "lambert"
-        assert mp.hemisphere == "both"
-        assert mp.data.shape[0] == 2
-        assert kind in mp.metadata.General.title
-        assert np.isfinite(mp.data).all() and mp.data.std() > 0
-
-    def test_kinematical_si_has_no_forbidden_200(self):
-        # Without sanitise_phase, Si gets a non-zero F(200), a reflection the
-        # diamond structure forbids
-        from diffsims.crystallography import ReciprocalLatticeVector
-
-        g = ReciprocalLatticeVector(synthetic.phase("Si"), hkl=[[2, 0, 0], [1, 1, 1]])
-        g.sanitise_phase()
-        g.calculate_structure_factor()
-        f = np.abs(g.structure_factor)
-        assert f[0] < 1e-6 * f[1]
-
-    def test_any_phase(self):
-        p = synthetic.phase("Si")
-        mp = synthetic.master_pattern(p, half_size=30)
-        assert mp.phase.point_group.name == "m-3m"
-        with pytest.raises(ValueError, match="Dynamical"):
-            synthetic.master_pattern(p, kind="dynamical")
-
-    def test_bad_names(self):
-        with pytest.raises(ValueError, match="Unknown phase"):
-            synthetic.master_pattern("Fe")
-        with pytest.raises(ValueError, match="kind"):
-            synthetic.master_pattern("Si", kind="hybrid")
-        with pytest.raises(ValueError, match="EMsoft"):
-            synthetic.master_pattern("Si", kind="emsoft")
-        with pytest.raises(ValueError, match="20 kV"):
-            synthetic.master_pattern("Ni", kind="emsoft", energy=15)
-
-    def test_batio3_file(self):
-        from importlib import resources
-
-        data = resources.files("kikuchipy_geomdic") / "data"
-        with resources.as_file(data / "BaTiO3_dynamical.npz") as f:
-            npz = np.load(f)
-            assert npz["data"].shape == (2, 801, 801) and npz["data"].dtype == np.float16
-            assert float(npz["energy"]) == 20
-            assert "de-ebsd 0.2.1 (GPL-3.0-or-later)" in str(npz["source"])
-            # Simulated from the CIF the package's phase is read from
-            assert str(npz["cif"]) == (data / "BaTiO3.cif").read_text()
-        mp = synthetic.master_pattern("BaTiO3")
-        assert mp.metadata.General.title == "BaTiO3 dynamical (de-ebsd 0.2.1)"
-        assert mp.data.dtype == np.float32
-        north, south = mp.data
-        # The square's edges are the equator, seen from both hemispheres
-        for edge in (np.s_[0, :], np.s_[-1, :], np.s_[:, 0], np.s_[:, -1]):
-            assert np.array_equal(north[edge], south[edge])
-        # 4mm has no inversion: the hemispheres differ inside
-        assert np.abs(north - south).mean() > 0.05 * north.std()
-
-    def test_ebsdsim_kind(self):
-        coarse = synthetic.master_pattern("BaTiO3", kind="ebsdsim")
-        assert coarse.data.shape == (2, 129, 129)
-        assert coarse.metadata.General.title == "BaTiO3 dynamical (ebsdsim 0.2.4)"
-        # Si's (and Ni's) dynamical master pattern is ebsdsim's already
-        si = synthetic.master_pattern("Si", kind="ebsdsim")
-        assert np.array_equal(si.data, synthetic.master_pattern("Si").data)
-        with pytest.raises(ValueError, match="20 kV"):
-            synthetic.master_pattern("BaTiO3", kind="ebsdsim", energy=15)
-
-    def test_returns_copies(self):
-        a = synthetic.master_pattern("Si")
-        a.data[:] = 0
-        assert synthetic.master_pattern("Si").data.max() > 0
-
-
 class TestVariants:
     def test_c_axes(self):
-        ops = synthetic.variant_operators()
+        ops = variant_operators()
         # The crystal c axis of each variant, in the parent's crystal frame
         c = (~ops * Vector3d.zvector()).data
         expected = [[0, 0, 1], [0, 0, -1], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0]]
@@ -104,7 +35,7 @@ class TestVariants:
         v = sm.xmap.prop["variant"]
         assert set(v) == set(range(6))
         parent = sm.xmap.rotations[v == 0][0]
-        ops = synthetic.variant_operators()
+        ops = variant_operators()
         for k in range(6):
             expected = ops[k] * parent
             got = sm.xmap.rotations[v == k]
@@ -132,14 +63,14 @@ class TestVariants:
         assert all(len(x) == 1 for x in per_diag)
         runs = [x.pop() for x in per_diag]
         runs = [k for i, k in enumerate(runs) if i == 0 or k != runs[i - 1]]
-        assert runs == list(synthetic.STRIPE_VARIANTS)
-        ops = synthetic.variant_operators()
+        assert runs == list(STRIPE_VARIANTS)
+        ops = variant_operators()
         # Both kinds of wall: a 90 deg and a 180 deg domain next to the parent
         angles = np.rad2deg(ops[np.unique(v)].angle)
         assert np.allclose(sorted(angles), [0, 90, 180])
 
     def test_stripes_truth_is_variant_of_parent(self, stripes):
-        ops = synthetic.variant_operators()
+        ops = variant_operators()
         v = stripes.xmap.prop["variant"]
         rot = stripes.xmap.rotations
         # Undoing each point's variant leaves one parent up to the scatter
@@ -152,7 +83,7 @@ class TestVariants:
         assert np.all(np.abs(raw - np.rad2deg(ops[v].angle)) < 1.5)
 
     def test_stripes_start_is_one_variant(self, stripes):
-        ops = synthetic.variant_operators()
+        ops = variant_operators()
         v = stripes.xmap.prop["variant"]
         assert not stripes.start_xmap.prop["variant"].any()
         assert np.array_equal(
@@ -170,7 +101,7 @@ class TestVariants:
         # The map's patterns are simulated with the true variants: they
         # differ from those of the same orientations in the parent's
         # variant in the 90 deg domain, and a little in the 180 deg one
-        ops = synthetic.variant_operators()
+        ops = variant_operators()
         v = stripes.xmap.prop["variant"]
         data = stripes.signal.data.reshape(v.size, 32, 32)
         det = stripes.detector
@@ -190,7 +121,7 @@ class TestVariants:
         from kikuchipy.detectors import EBSDDetector
 
         det = EBSDDetector((120, 120), pc=(0.5, 0.3, 0.6), sample_tilt=70)
-        ops = synthetic.variant_operators()
+        ops = variant_operators()
         p0 = simulate_patterns(bto_mp, r, det, 20)
         ncc = np.array([_ncc(simulate_patterns(bto_mp, op * r, det, 20), p0) for op in ops[1:]])
         # 90 deg variants (c axis swapped, c/a = 1.011): measured 0.70-0.80
@@ -260,18 +191,6 @@ class TestSyntheticMap:
             synthetic.synthetic_map(stereo, (2, 2))
 
 
-def test_degrade_is_identity_when_off():
-    p = np.random.default_rng(0).random((2, 8, 8)).astype(np.float32)
-    assert np.array_equal(synthetic.degrade_patterns(p), p)
-
-
-def test_perturb_rotations_rms():
-    r = Rotation.identity(4000)
-    p = synthetic.perturb_rotations(r, 0.3, 0)
-    rms = np.sqrt(np.mean(np.rad2deg(p.angle) ** 2))
-    assert abs(rms - 0.3) < 0.01
-
-
 # --------------------------------------------------------------------- #
 # Start models
 # --------------------------------------------------------------------- #
@@ -310,20 +229,20 @@ class TestStartModels:
 
     def test_centred_has_no_common_rotation(self, starts):
         sm = starts["centred"]
-        angle, axis = synthetic.common_rotation(sm.start_xmap, sm.xmap)
+        angle, axis = common_rotation(sm.start_xmap, sm.xmap)
         assert angle < 1e-9
         mis = np.rad2deg(sm.start_xmap.rotations.angle)
         assert mis.size == N
 
     def test_uncentred_common_part_is_random_mean(self, starts):
         sm = starts["uncentred"]
-        angle, _ = synthetic.common_rotation(sm.start_xmap, sm.xmap)
+        angle, _ = common_rotation(sm.start_xmap, sm.xmap)
         # One draw of |mean| of N vectors of RMS length S: about S / sqrt(N)
         assert 0.1 * S / np.sqrt(N) < angle < 4 * S / np.sqrt(N)
         # The same draws as "centred", not centred
         c = starts["centred"]
-        v_c = synthetic.rotation_vectors(~c.xmap.rotations * c.start_xmap.rotations)
-        v_u = synthetic.rotation_vectors(~sm.xmap.rotations * sm.start_xmap.rotations)
+        v_c = rotation_vectors(~c.xmap.rotations * c.start_xmap.rotations)
+        v_u = rotation_vectors(~sm.xmap.rotations * sm.start_xmap.rotations)
         assert np.allclose(v_u - v_u.mean(axis=0), v_c, atol=1e-12)
 
     def test_uncentred_common_part_statistics(self):
@@ -331,9 +250,7 @@ class TestStartModels:
         truth = Rotation.identity(N)
         rng = np.random.default_rng(0)
         angles = [
-            synthetic.common_rotation(
-                synthetic.perturb_rotations(truth, S, rng, centred=False), truth
-            ).angle
+            common_rotation(perturb_rotations(truth, S, rng, centred=False), truth).angle
             for _ in range(400)
         ]
         rms = np.sqrt(np.mean(np.square(angles)))
@@ -341,11 +258,11 @@ class TestStartModels:
 
     def test_indexed_absorbs_the_geometry_error(self, si_mp, starts):
         sm = starts["indexed"]
-        biased = synthetic.common_rotation(sm.start_xmap, sm.xmap).angle
+        biased = common_rotation(sm.start_xmap, sm.xmap).angle
         assert biased > 3 * S / np.sqrt(N)
         # At the true geometry, refinement removes the common part instead
         at_truth = _start_map(si_mp, "indexed", perturbation={})
-        unbiased = synthetic.common_rotation(at_truth.start_xmap, at_truth.xmap).angle
+        unbiased = common_rotation(at_truth.start_xmap, at_truth.xmap).angle
         assert unbiased < 0.1 * S / np.sqrt(N)
         assert unbiased < 0.05 * biased
         assert np.allclose(at_truth.start_detector.pc, at_truth.detector.pc)
@@ -376,52 +293,11 @@ class TestStartModels:
         b = synthetic.synthetic_map(si_mp, lazy=True, **kw)
         assert b.signal._lazy
         assert np.array_equal(a.start_xmap.rotations.data, b.start_xmap.rotations.data)
-        assert synthetic.common_rotation(a.start_xmap, a.xmap).angle > 0.3
+        assert common_rotation(a.start_xmap, a.xmap).angle > 0.3
 
     def test_bad_start(self, si_mp):
         with pytest.raises(ValueError, match="start"):
             synthetic.synthetic_map(si_mp, (2, 2), start="indexd")
-
-
-class TestCommonRotation:
-    def test_recovers_a_common_rotation(self):
-        truth = Rotation.random(20)
-        t = Rotation.from_axes_angles([1, 2, -2], np.deg2rad(0.8))
-        common = synthetic.common_rotation(truth * t, truth)
-        assert np.isclose(common.angle, 0.8)
-        assert np.allclose(common.axis, np.array([1, 2, -2]) / 3)
-        assert np.allclose(common.vector, 0.8 * np.array([1, 2, -2]) / 3)
-        # The left factor (crystal frame) is not what is measured
-        assert not np.isclose(synthetic.common_rotation(t * truth, truth).angle, 0.8)
-
-    def test_sign_and_zero(self):
-        truth = Rotation.random(3)
-        start = Rotation(-truth.data)  # q and -q: the same rotation
-        assert synthetic.common_rotation(start, truth).angle < 1e-12
-        angle, axis = synthetic.common_rotation(-Rotation.identity(2), Rotation.identity(2))
-        assert angle == 0 and np.array_equal(axis, [0, 0, 1])
-
-    def test_symmetry(self):
-        from orix.quaternion.symmetry import Oh
-
-        truth = Rotation.random(10)
-        t = Rotation.from_axes_angles([0, 0, 1], np.deg2rad(0.5))
-        ops = Oh.proper_subgroup[np.arange(10) % 24]
-        start = ops * (truth * t)
-        assert synthetic.common_rotation(start, truth).angle > 1
-        assert np.isclose(synthetic.common_rotation(start, truth, symmetry=Oh).angle, 0.5)
-
-    def test_sizes_must_match(self):
-        with pytest.raises(ValueError, match="rotations"):
-            synthetic.common_rotation(Rotation.identity(2), Rotation.identity(3))
-
-    def test_rotation_vectors_tiny_angles(self):
-        v = np.array([[1e-12, 0, 0], [0, 2e-9, 0], [0, 0, 0], [0.1, -0.2, 0.3]])
-        angle = np.linalg.norm(v, axis=1)
-        axis = v / np.where(angle > 0, angle, 1)[:, None]
-        # orix's from_axes_angles rounds angles below 1e-8 rad to zero
-        r = Rotation(np.c_[np.cos(angle / 2), axis * np.sin(angle / 2)[:, None]])
-        assert np.allclose(synthetic.rotation_vectors(r), v, rtol=1e-9, atol=1e-20)
 
 
 # --------------------------------------------------------------------- #
@@ -431,7 +307,7 @@ class TestCommonRotation:
 
 class TestNickel:
     def test_phase(self):
-        p = synthetic.phase("nickel")
+        p = master_patterns.phase("nickel")
         assert p.name == "Ni" and p.point_group.name == "m-3m"
         assert np.allclose(p.structure.lattice.abcABG(), [3.524] * 3 + [90] * 3)
 
@@ -446,24 +322,24 @@ class TestNickel:
             assert "ebsdsim 0.2.4" in str(npz["source"])
             # The CIF the simulation used: ebsdsim's preset Ni
             assert "3.47514587" in str(npz["cif"])
-        mp = synthetic.master_pattern("Ni")
+        mp = master_patterns.master_pattern("Ni")
         assert mp.metadata.General.title == "Ni dynamical (ebsdsim 0.2.4)"
         # Centrosymmetric: both hemispheres equal
         assert np.array_equal(mp.data[0], mp.data[1])
 
     def test_emsoft_master_pattern(self):
-        mp = synthetic.master_pattern("Ni", kind="emsoft")
+        mp = master_patterns.master_pattern("Ni", kind="emsoft")
         assert (mp.projection, mp.hemisphere) == ("lambert", "both")
         assert mp.data.shape == (2, 401, 401) and mp.data.dtype == np.float32
         assert "EMsoft" in mp.metadata.General.title
         # The package's phase (angstrom), not kikuchipy's (nm)
         assert mp.phase.structure.lattice.a == 3.524
         mp.data[:] = 0
-        assert synthetic.master_pattern("Ni", kind="emsoft").data.max() > 0
+        assert master_patterns.master_pattern("Ni", kind="emsoft").data.max() > 0
 
     def test_simulators_agree_but_differ(self):
-        emsoft = synthetic.master_pattern("Ni", kind="emsoft")
-        ebsdsim = synthetic.master_pattern("Ni")
+        emsoft = master_patterns.master_pattern("Ni", kind="emsoft")
+        ebsdsim = master_patterns.master_pattern("Ni")
         sm = synthetic.synthetic_map(emsoft, (2, 3), shape=(60, 60), seed=7)
         assert sm.xmap.phases[0].point_group.name == ebsdsim.phase.point_group.name == "m-3m"
         other = simulate_patterns(ebsdsim, sm.xmap.rotations, sm.detector, 20)
@@ -480,8 +356,8 @@ class TestNickel:
         import contextlib
         import io
 
-        emsoft = synthetic.master_pattern("Ni", kind="emsoft")
-        ebsdsim = synthetic.master_pattern("Ni")
+        emsoft = master_patterns.master_pattern("Ni", kind="emsoft")
+        ebsdsim = master_patterns.master_pattern("Ni")
         sm = synthetic.synthetic_map(emsoft, (2, 2), shape=(60, 60), perturbation={}, seed=3)
         with contextlib.redirect_stdout(io.StringIO()):
             ref = sm.signal.refine_orientation(sm.start_xmap, sm.detector, ebsdsim, 20)

@@ -1,0 +1,260 @@
+"""Master patterns and phases of silicon, tetragonal BaTiO3 and nickel.
+
+Master patterns
+---------------
+:func:`master_pattern` returns a Lambert master pattern (both hemispheres)
+for silicon, tetragonal BaTiO3, nickel or any orix
+:class:`~orix.crystal_map.Phase`: dynamical for Si, BaTiO3 and Ni from the
+package data, or kinematical, built here with diffsims/kikuchipy for any
+phase. For nickel there is a second, independent dynamical master pattern
+(``kind="emsoft"``), so that "experimental" patterns can be simulated with
+one simulator and calibrated with another.
+
+Data and credits
+----------------
+- ``data/Si_dynamical.npz`` and ``data/Ni_dynamical.npz``: computed with
+  ebsdsim 0.2.4 (MIT licence), 20 kV, sample tilt 70 deg, Lambert
+  201 x 201. Each is ebsdsim's per-energy-bin master pattern read with
+  ``kikuchipy.load(path, hemisphere="both")`` and averaged over the energy
+  bins with ebsdsim's ``bin_weights`` (``np.average`` in float64, stored
+  as float32); the npz keeps the CIF the simulation used. Ni was computed
+  from ebsdsim's preset ``Ni.cif`` (a = 3.4751 angstrom, 1.4 % below
+  nickel's 3.524 angstrom, so its bands are about 1.4 % wider than real
+  Ni's), while the phase attached to it, :func:`phase` "Ni" from
+  ``data/Ni.cif``, has a = 3.524 angstrom.
+- ``data/BaTiO3_dynamical.npz``: computed with de-ebsd 0.2.1
+  (GPL-3.0-or-later; Bloch waves, its own Monte Carlo depth profile),
+  20 kV, sample tilt 70 deg, dmin 0.04 nm, Lambert 801 x 801 per
+  hemisphere from ``data/BaTiO3.cif``. The full grid is shipped, with the
+  intensities rounded to float16 (relative error at most 5e-4; patterns
+  projected from it correlate with those from the float32 original to
+  1 - 1e-7): resampled to 401 x 401 it would lose 4 % of the pattern
+  correlation at 120 px. See ``data/README.md``.
+- ``data/BaTiO3_ebsdsim.npz`` (``kind="ebsdsim"``): the coarse BaTiO3
+  master pattern computed with ebsdsim 0.2.4 (MIT) as Si and Ni, Lambert
+  129 x 129, dmin 0.08 nm, from the same CIF; grainy, kept as a second
+  simulator.
+- ``kind="emsoft"``: kikuchipy's shipped EMsoft Ni master pattern
+  (``kikuchipy.data.nickel_ebsd_master_pattern_small``, 20 kV, 401 x 401,
+  uint8; simulated with EMsoft, Callahan and De Graef, Microsc.
+  Microanal. 19 (2013) 1255; data set under CC BY 4.0, shipped with
+  kikuchipy), read offline from the kikuchipy installation, not copied
+  into this package.
+Layer 7 (validation): may import geometry, io, patterns, indexing, plotting, calibration.
+"""
+
+from __future__ import annotations
+
+import functools
+from importlib import resources
+
+import numpy as np
+from kikuchipy.signals import EBSDMasterPattern
+from orix.crystal_map import Phase
+
+__all__ = ["phase", "master_pattern"]
+
+_DATA = resources.files("kikuchipy_geomdic") / "data"
+#: File and simulator of each shipped dynamical master pattern by kind:
+#: "dynamical" is the best one, "ebsdsim" ebsdsim's (the same for Si and Ni)
+_DYNAMICAL_FILES = {
+    "dynamical": {
+        "Si": ("Si_dynamical.npz", "ebsdsim 0.2.4"),
+        "Ni": ("Ni_dynamical.npz", "ebsdsim 0.2.4"),
+        "BaTiO3": ("BaTiO3_dynamical.npz", "de-ebsd 0.2.1"),
+    },
+    "ebsdsim": {
+        "Si": ("Si_dynamical.npz", "ebsdsim 0.2.4"),
+        "Ni": ("Ni_dynamical.npz", "ebsdsim 0.2.4"),
+        "BaTiO3": ("BaTiO3_ebsdsim.npz", "ebsdsim 0.2.4"),
+    },
+}
+_PHASES = {
+    "si": "Si",
+    "silicon": "Si",
+    "batio3": "BaTiO3",
+    "bto": "BaTiO3",
+    "ni": "Ni",
+    "nickel": "Ni",
+}
+
+
+def _phase_key(name: str) -> str:
+    try:
+        return _PHASES[name.lower()]
+    except KeyError:
+        raise ValueError(
+            f"Unknown phase {name!r}: use 'Si', 'BaTiO3', 'Ni' or pass an orix Phase"
+        ) from None
+
+
+def phase(name: str) -> Phase:
+    """Return the orix phase of silicon, tetragonal BaTiO3 or nickel.
+
+    Parameters
+    ----------
+    name
+        "Si", "BaTiO3" or "Ni" (case-insensitive).
+
+    Returns
+    -------
+    phase
+        Phase read from the CIF shipped with the package (lattice
+        parameters in angstrom).
+
+    Examples
+    --------
+    >>> from kikuchipy_geomdic.validation.master_patterns import phase
+    >>> phase("BaTiO3").point_group.name
+    '4mm'
+    >>> p = phase("Ni")
+    >>> p.point_group.name, p.structure.lattice.a
+    ('m-3m', 3.524)
+    """
+    key = _phase_key(name)
+    with resources.as_file(_DATA / f"{key}.cif") as path:
+        p = Phase.from_cif(str(path))
+    p.name = key
+    return p
+
+
+def master_pattern(
+    phase_or_name: str | Phase = "Si",
+    kind: str = "auto",
+    energy: float = 20,
+    half_size: int = 100,
+    min_dspacing: float = 0.8,
+) -> EBSDMasterPattern:
+    """Return a Lambert master pattern with both hemispheres.
+
+    Parameters
+    ----------
+    phase_or_name
+        "Si", "BaTiO3", "Ni" or an orix phase (lattice parameters in
+        angstrom).
+    kind
+        "dynamical" (package data at 20 kV only: Si and Ni computed with
+        ebsdsim, BaTiO3 with de-ebsd), "ebsdsim" (the same for Si and Ni;
+        for BaTiO3 a coarse, grainy 129 x 129 ebsdsim pattern, a second
+        simulator for mismatch tests), "emsoft" (Ni only: kikuchipy's shipped EMsoft
+        master pattern, 20 kV, 401 x 401, to simulate "experimental"
+        patterns with another simulator than the one used to calibrate),
+        "kinematical" (any phase, any energy), or "auto": dynamical
+        where available, else kinematical.
+    energy
+        Beam energy in kV (kinematical only; dynamical and EMsoft ones
+        are 20 kV).
+    half_size
+        Half the side of the kinematical master pattern in pixels.
+    min_dspacing
+        Smallest interplanar spacing of the kinematical reflectors, in
+        angstrom.
+
+    Returns
+    -------
+    master_pattern
+        :class:`~kikuchipy.signals.EBSDMasterPattern`, Lambert projection,
+        hemisphere "both", float32. ``metadata.General.title`` says which
+        kind it is. Its phase is :func:`phase` of the name (lattice in
+        angstrom), also for the EMsoft Ni pattern (kikuchipy's phase of
+        it is in nm), so that crystal maps simulated from one Ni master
+        pattern can be refined with kikuchipy against the other.
+
+    Examples
+    --------
+    >>> from kikuchipy_geomdic.validation.master_patterns import master_pattern
+    >>> mp = master_pattern("Si")
+    >>> mp.projection, mp.hemisphere, mp.metadata.General.title
+    ('lambert', 'both', 'Si dynamical (ebsdsim 0.2.4)')
+    >>> master_pattern("BaTiO3").metadata.General.title
+    'BaTiO3 dynamical (de-ebsd 0.2.1)'
+    >>> master_pattern("BaTiO3", kind="ebsdsim").data.shape
+    (2, 129, 129)
+    >>> master_pattern("Ni", kind="emsoft").metadata.General.title
+    'Ni dynamical (EMsoft, kikuchipy data)'
+    """
+    if kind not in ("auto", "dynamical", "ebsdsim", "kinematical", "emsoft"):
+        raise ValueError(
+            f"kind must be 'auto', 'dynamical', 'ebsdsim', 'kinematical' or 'emsoft', not {kind!r}"
+        )
+    if isinstance(phase_or_name, Phase):
+        if kind in ("dynamical", "ebsdsim", "emsoft"):
+            raise ValueError(
+                "Dynamical master patterns exist only for 'Si', 'BaTiO3' and 'Ni' (EMsoft: 'Ni')"
+            )
+        return _kinematical(phase_or_name, energy, half_size, min_dspacing).deepcopy()
+    key = _phase_key(phase_or_name)
+    if kind == "emsoft":
+        if key != "Ni":
+            raise ValueError(f"The EMsoft master pattern is for 'Ni' only, not {key!r}")
+        if energy != 20:
+            raise ValueError("The EMsoft Ni master pattern is for 20 kV")
+        return _emsoft_ni().deepcopy()
+    if kind == "kinematical":
+        return _kinematical_named(key, energy, half_size, min_dspacing).deepcopy()
+    if energy != 20:
+        if kind in ("dynamical", "ebsdsim"):
+            raise ValueError("The shipped dynamical master patterns are for 20 kV")
+        return _kinematical_named(key, energy, half_size, min_dspacing).deepcopy()
+    return _dynamical(key, "ebsdsim" if kind == "ebsdsim" else "dynamical").deepcopy()
+
+
+@functools.lru_cache(maxsize=4)
+def _dynamical(key: str, kind: str = "dynamical") -> EBSDMasterPattern:
+    name, simulator = _DYNAMICAL_FILES[kind][key]
+    with resources.as_file(_DATA / name) as path:
+        npz = np.load(path)
+        # BaTiO3 is stored as float16 to keep its 801 x 801 grid small
+        data = npz["data"].astype(np.float32)
+    n = data.shape[-1]
+    axes = [
+        {"size": 2, "name": "hemisphere", "scale": 1, "offset": 0, "units": ""},
+        {"size": n, "name": "height", "scale": 1, "offset": -(n // 2), "units": "px"},
+        {"size": n, "name": "width", "scale": 1, "offset": -(n // 2), "units": "px"},
+    ]
+    mp = EBSDMasterPattern(
+        data, axes=axes, projection="lambert", hemisphere="both", phase=phase(key)
+    )
+    mp.metadata.General.title = f"{key} dynamical ({simulator})"
+    return mp
+
+
+@functools.lru_cache(maxsize=1)
+def _emsoft_ni() -> EBSDMasterPattern:
+    import kikuchipy as kp
+
+    # Shipped in the kikuchipy wheel (offline): EMsoft, 20 kV, 401 x 401,
+    # uint8. kikuchipy's phase has its lattice in nm; give it the
+    # package's Ni phase (angstrom) so that kikuchipy, which requires
+    # identical phases, refines maps simulated from it with the ebsdsim
+    # Ni master pattern and vice versa
+    mp = kp.data.nickel_ebsd_master_pattern_small(projection="lambert", hemisphere="both")
+    mp.data = mp.data.astype(np.float32)
+    mp.phase = phase("Ni")
+    mp.metadata.General.title = "Ni dynamical (EMsoft, kikuchipy data)"
+    return mp
+
+
+@functools.lru_cache(maxsize=8)
+def _kinematical_named(key, energy, half_size, min_dspacing) -> EBSDMasterPattern:
+    return _kinematical(phase(key), energy, half_size, min_dspacing)
+
+
+def _kinematical(p: Phase, energy, half_size, min_dspacing) -> EBSDMasterPattern:
+    from diffsims.crystallography import ReciprocalLatticeVector
+    from kikuchipy.simulations import KikuchiPatternSimulator
+
+    g = ReciprocalLatticeVector.from_min_dspacing(p.deepcopy(), min_dspacing)
+    # Without sanitising, Si gets a non-zero F(200), a forbidden reflection
+    g.sanitise_phase()
+    g.calculate_structure_factor()
+    f = abs(g.structure_factor)
+    g = g[f > 1e-4 * f.max()]
+    g.calculate_theta(energy * 1e3)
+    sim = KikuchiPatternSimulator(g)
+    # Point groups without inversion (BaTiO3's 4mm) need both hemispheres
+    mp = sim.calculate_master_pattern(half_size=half_size, hemisphere="both")
+    mp = mp.as_lambert(show_progressbar=False)
+    mp.data = mp.data.astype(np.float32)
+    mp.metadata.General.title = f"{p.name} kinematical"
+    return mp

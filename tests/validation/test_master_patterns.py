@@ -1,0 +1,82 @@
+"""Tests of the shipped and computed master patterns and their phases."""
+
+import numpy as np
+import pytest
+
+from kikuchipy_geomdic.validation import master_patterns
+
+
+class TestMasterPattern:
+    @pytest.mark.parametrize("name", ["Si", "BaTiO3", "Ni"])
+    @pytest.mark.parametrize("kind", ["dynamical", "kinematical"])
+    def test_lambert_both(self, name, kind):
+        mp = master_patterns.master_pattern(name, kind=kind, half_size=40)
+        assert mp.projection == "lambert"
+        assert mp.hemisphere == "both"
+        assert mp.data.shape[0] == 2
+        assert kind in mp.metadata.General.title
+        assert np.isfinite(mp.data).all() and mp.data.std() > 0
+
+    def test_kinematical_si_has_no_forbidden_200(self):
+        # Without sanitise_phase, Si gets a non-zero F(200), a reflection the
+        # diamond structure forbids
+        from diffsims.crystallography import ReciprocalLatticeVector
+
+        g = ReciprocalLatticeVector(master_patterns.phase("Si"), hkl=[[2, 0, 0], [1, 1, 1]])
+        g.sanitise_phase()
+        g.calculate_structure_factor()
+        f = np.abs(g.structure_factor)
+        assert f[0] < 1e-6 * f[1]
+
+    def test_any_phase(self):
+        p = master_patterns.phase("Si")
+        mp = master_patterns.master_pattern(p, half_size=30)
+        assert mp.phase.point_group.name == "m-3m"
+        with pytest.raises(ValueError, match="Dynamical"):
+            master_patterns.master_pattern(p, kind="dynamical")
+
+    def test_bad_names(self):
+        with pytest.raises(ValueError, match="Unknown phase"):
+            master_patterns.master_pattern("Fe")
+        with pytest.raises(ValueError, match="kind"):
+            master_patterns.master_pattern("Si", kind="hybrid")
+        with pytest.raises(ValueError, match="EMsoft"):
+            master_patterns.master_pattern("Si", kind="emsoft")
+        with pytest.raises(ValueError, match="20 kV"):
+            master_patterns.master_pattern("Ni", kind="emsoft", energy=15)
+
+    def test_batio3_file(self):
+        from importlib import resources
+
+        data = resources.files("kikuchipy_geomdic") / "data"
+        with resources.as_file(data / "BaTiO3_dynamical.npz") as f:
+            npz = np.load(f)
+            assert npz["data"].shape == (2, 801, 801) and npz["data"].dtype == np.float16
+            assert float(npz["energy"]) == 20
+            assert "de-ebsd 0.2.1 (GPL-3.0-or-later)" in str(npz["source"])
+            # Simulated from the CIF the package's phase is read from
+            assert str(npz["cif"]) == (data / "BaTiO3.cif").read_text()
+        mp = master_patterns.master_pattern("BaTiO3")
+        assert mp.metadata.General.title == "BaTiO3 dynamical (de-ebsd 0.2.1)"
+        assert mp.data.dtype == np.float32
+        north, south = mp.data
+        # The square's edges are the equator, seen from both hemispheres
+        for edge in (np.s_[0, :], np.s_[-1, :], np.s_[:, 0], np.s_[:, -1]):
+            assert np.array_equal(north[edge], south[edge])
+        # 4mm has no inversion: the hemispheres differ inside
+        assert np.abs(north - south).mean() > 0.05 * north.std()
+
+    def test_ebsdsim_kind(self):
+        coarse = master_patterns.master_pattern("BaTiO3", kind="ebsdsim")
+        assert coarse.data.shape == (2, 129, 129)
+        assert coarse.metadata.General.title == "BaTiO3 dynamical (ebsdsim 0.2.4)"
+        # Si's (and Ni's) dynamical master pattern is ebsdsim's already
+        si = master_patterns.master_pattern("Si", kind="ebsdsim")
+        assert np.array_equal(si.data, master_patterns.master_pattern("Si").data)
+        with pytest.raises(ValueError, match="20 kV"):
+            master_patterns.master_pattern("BaTiO3", kind="ebsdsim", energy=15)
+
+    def test_returns_copies(self):
+        a = master_patterns.master_pattern("Si")
+        a.data[:] = 0
+        assert master_patterns.master_pattern("Si").data.max() > 0
