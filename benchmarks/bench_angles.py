@@ -74,7 +74,7 @@ import numpy as np  # noqa: E402
 from _tee import Tee  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
-LIMIT = 0.1  # refinement.DETERMINACY_LIMITS of the angles (deg)
+LIMIT = 0.1  # uncertainty.DETERMINACY_LIMITS of the angles (deg)
 
 BASE = dict(fov=500.0, pcz=0.62, size=120, nav=10, points=100)
 SWEEPS = {
@@ -500,10 +500,10 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     suffix = ("_quick" if args.quick else "") + ("_unrestricted" if args.unrestricted else "")
     if args.unrestricted:
-        from kikuchipy_geomdic.calibration import refinement
+        from kikuchipy_geomdic.calibration import uncertainty
 
-        for k in refinement.DETERMINACY_LIMITS:
-            refinement.DETERMINACY_LIMITS[k] = float("inf")
+        for k in uncertainty.DETERMINACY_LIMITS:
+            uncertainty.DETERMINACY_LIMITS[k] = float("inf")
     if args.quick and args.seeds == [0, 1, 2, 3]:
         args.seeds = [0]
     args.out.mkdir(parents=True, exist_ok=True)

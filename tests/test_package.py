@@ -225,3 +225,52 @@ def test_every_layer_is_a_known_subpackage():
     found = {p.name for p in PACKAGE.iterdir() if (p / "__init__.py").is_file()}
     found |= {p.stem for p in PACKAGE.glob("_*.py") if p.stem not in ("__init__", "__main__")}
     assert found == set(LAYERS)
+
+
+# --------------------------------------------------------------------- #
+# Sizes: small modules, thin public functions
+# --------------------------------------------------------------------- #
+
+#: Longest module (lines) and public function (lines of code: docstring,
+#: blank and comment lines aside) the package keeps to.
+MAX_MODULE_LINES = 600
+MAX_FUNCTION_LINES = 80
+
+
+def _code_lines(node, source: list[str]) -> int:
+    import ast
+
+    body = node.body
+    first = body[0]
+    if isinstance(first, ast.Expr) and isinstance(getattr(first, "value", None), ast.Constant):
+        body = body[1:]
+    lines = set()
+    for statement in body:
+        for number in range(statement.lineno, statement.end_lineno + 1):
+            text = source[number - 1].strip()
+            if text and not text.startswith("#"):
+                lines.add(number)
+    return len(lines)
+
+
+def test_modules_are_small():
+    long = {
+        p.relative_to(ROOT).as_posix(): n
+        for p in PACKAGE.rglob("*.py")
+        if (n := len(p.read_text().splitlines())) > MAX_MODULE_LINES
+    }
+    assert not long, long
+
+
+def test_public_functions_are_thin():
+    import ast
+
+    long = {}
+    for path in PACKAGE.rglob("*.py"):
+        text = path.read_text()
+        source = text.splitlines()
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, ast.FunctionDef) and not node.name.startswith("_"):
+                if (n := _code_lines(node, source)) > MAX_FUNCTION_LINES:
+                    long[f"{path.relative_to(ROOT).as_posix()}:{node.name}"] = n
+    assert not long, long

@@ -57,8 +57,8 @@ from kikuchipy_geomdic.calibration._dic_fit import (
 from kikuchipy_geomdic.calibration._paper import _paper_loop
 from kikuchipy_geomdic.calibration._problem import _LoopOutcome, _Problem, _State, _step_record
 from kikuchipy_geomdic.calibration._progress import _Progress
-from kikuchipy_geomdic.calibration._uncertainty import _PC, DETERMINACY_LIMITS, SIGNIFICANCE
 from kikuchipy_geomdic.calibration.solve import JointUpdate
+from kikuchipy_geomdic.calibration.uncertainty import _PC, DETERMINACY_LIMITS, SIGNIFICANCE
 from kikuchipy_geomdic.geometry import MapGeometry, rotations_from_vectors, solved_parameters
 from kikuchipy_geomdic.patterns import displacement as dsp
 

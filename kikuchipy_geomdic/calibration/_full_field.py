@@ -23,7 +23,9 @@ from kikuchipy_geomdic.calibration._dic_fit import _expand, _prior_per_axis, _so
 from kikuchipy_geomdic.calibration._problem import _LoopOutcome, _Problem, _step_record
 from kikuchipy_geomdic.calibration._processing import _estimate_processing
 from kikuchipy_geomdic.calibration._progress import _Progress
-from kikuchipy_geomdic.calibration._uncertainty import (
+from kikuchipy_geomdic.calibration.jacobian import INTENSITY_STEPS, intensity_jacobian
+from kikuchipy_geomdic.calibration.solve import JointSystem, solve_joint
+from kikuchipy_geomdic.calibration.uncertainty import (
     _PC,
     DETERMINACY_LIMITS,
     SIGNIFICANCE,
@@ -32,8 +34,6 @@ from kikuchipy_geomdic.calibration._uncertainty import (
     _inflated,
     _named_errors,
 )
-from kikuchipy_geomdic.calibration.jacobian import INTENSITY_STEPS, intensity_jacobian
-from kikuchipy_geomdic.calibration.solve import JointSystem, solve_joint
 from kikuchipy_geomdic.geometry import MapGeometry, rotations_from_vectors, solved_parameters
 
 #: Gauss-Newton steps of the full-field stage at most; it stops earlier

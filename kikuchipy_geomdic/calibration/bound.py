@@ -56,8 +56,8 @@ from orix.crystal_map import CrystalMap
 from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.calibration._points import _map_points, calibration_points
-from kikuchipy_geomdic.calibration._uncertainty import TILT_DIFFERENCE
 from kikuchipy_geomdic.calibration.jacobian import INTENSITY_STEPS, intensity_jacobian
+from kikuchipy_geomdic.calibration.uncertainty import TILT_DIFFERENCE
 from kikuchipy_geomdic.geometry import (
     DEFAULT_PARAMETERS,
     UNITS,

@@ -47,12 +47,6 @@ from kikuchipy_geomdic.calibration._full_field import FULL_FIELD_BASIN, _full_fi
 from kikuchipy_geomdic.calibration._points import calibration_points
 from kikuchipy_geomdic.calibration._problem import _binning, _prepare_problem
 from kikuchipy_geomdic.calibration._progress import _Progress, _show_progressbar
-from kikuchipy_geomdic.calibration._uncertainty import (
-    ADEQUACY_LIMIT,
-    DETERMINACY_LIMITS,
-    SIGNIFICANCE,
-    TILT_DIFFERENCE,
-)
 from kikuchipy_geomdic.calibration.result import (
     GeometryRefinementResult,
     _build_result,
@@ -65,10 +59,6 @@ __all__ = [
     "refine_geometry_dic",
     "calibration_points",
     "SOLVERS",
-    "DETERMINACY_LIMITS",
-    "SIGNIFICANCE",
-    "ADEQUACY_LIMIT",
-    "TILT_DIFFERENCE",
 ]
 
 
@@ -237,14 +227,16 @@ def refine_geometry_dic(
         cluster-robust over the patterns, checked against the DIC stage
         (:attr:`GeometryRefinementResult.adequacy`: raised, with a
         warning, where the two disagree by more than
-        :data:`ADEQUACY_LIMIT` combined standard errors). Default: True
-        for the joint solver, False for the paper's. The DIC stage then
-        ends once the RMS displacement is below :data:`FULL_FIELD_BASIN`.
+        :data:`~kikuchipy_geomdic.calibration.uncertainty.ADEQUACY_LIMIT`
+        combined standard errors). Default: True for the joint solver,
+        False for the paper's. The DIC stage then ends once the RMS
+        displacement is below 0.3 % of the width, the full field's basin.
         By default it is skipped, with a warning, when the DIC stage
         leaves a PC parameter undetermined (standard error above
-        :data:`DETERMINACY_LIMITS`): the full field needs a start in its
-        basin; True runs it anyway. False: the DIC stage alone, for
-        patterns the model does not describe (see the method page).
+        :data:`~kikuchipy_geomdic.calibration.uncertainty.DETERMINACY_LIMITS`):
+        the full field needs a start in its basin; True runs it anyway.
+        False: the DIC stage alone, for patterns the model does not
+        describe (see the method page).
     show_progressbar
         Whether to show a progress bar over the iterations (tqdm, on
         stderr) and print a header and one line per trial step (stdout).
@@ -266,9 +258,10 @@ def refine_geometry_dic(
     dependence on the angles across the map (weak: it grows with the
     field of view) and a belief about the starting orientations
     (*orientation_prior*) separate them. A parameter whose standard error
-    exceeds :data:`DETERMINACY_LIMITS` is moved by the joint solver only
-    by a step of :data:`SIGNIFICANCE` standard errors or more, so that
-    noise cannot walk it around; the result lists it in
+    exceeds :data:`~kikuchipy_geomdic.calibration.uncertainty.DETERMINACY_LIMITS`
+    is moved by the joint solver only by a step of
+    :data:`~kikuchipy_geomdic.calibration.uncertainty.SIGNIFICANCE` standard
+    errors or more, so that noise cannot walk it around; the result lists it in
     :attr:`~GeometryRefinementResult.undetermined`, with its standard
     error.
 

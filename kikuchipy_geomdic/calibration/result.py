@@ -19,13 +19,13 @@ from orix.crystal_map import CrystalMap, PhaseList
 from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.calibration._problem import _LoopOutcome, _Problem, _State
-from kikuchipy_geomdic.calibration._uncertainty import (
+from kikuchipy_geomdic.calibration.jacobian import analytic_jacobian
+from kikuchipy_geomdic.calibration.solve import coupling_matrix, solve_update
+from kikuchipy_geomdic.calibration.uncertainty import (
     DETERMINACY_LIMITS,
     TILT_DIFFERENCE,
     _standard_errors,
 )
-from kikuchipy_geomdic.calibration.jacobian import analytic_jacobian
-from kikuchipy_geomdic.calibration.solve import coupling_matrix, solve_update
 from kikuchipy_geomdic.geometry import MapGeometry
 from kikuchipy_geomdic.patterns import displacement as dsp
 
@@ -75,8 +75,8 @@ class GeometryRefinementResult:
         refined: only their difference is determined.
     undetermined
         Parameters the map determines only poorly (standard error above
-        :data:`DETERMINACY_LIMITS`; for tilt and sample_tilt, that of
-        their difference). The joint solver moved them only by
+        :data:`~kikuchipy_geomdic.calibration.uncertainty.DETERMINACY_LIMITS`;
+        for tilt and sample_tilt, that of their difference). The joint solver moved them only by
         significant steps; unmoved, they keep their start value.
     solver
         "joint" or "paper".
@@ -105,7 +105,8 @@ class GeometryRefinementResult:
         :class:`~kikuchipy_geomdic.patterns.displacement.DisplacementField` at the
         start and at the last geometry the DIC measured: the refined one,
         or, after the full-field stage, the DIC stage's last (the full
-        field's start, within :data:`FULL_FIELD_BASIN` of the solution).
+        field's start, a few tenths of a percent of the width from the
+        solution).
     converged
         Whether the loop ended by its tolerances (joint: every step below
         its standard error; paper: NCC gain below ``ncc_tolerance`` and
@@ -113,8 +114,9 @@ class GeometryRefinementResult:
         *max_iterations* or by rejected steps.
     adequacy
         The check of the full-field stage against the DIC stage
-        (:data:`ADEQUACY_LIMIT`): the step the DIC stage would take
-        from the full field's solution per parameter (``"dic_step"``) and
+        (:data:`~kikuchipy_geomdic.calibration.uncertainty.ADEQUACY_LIMIT`):
+        the DIC stage's solution (where it ended plus its last step) minus
+        the full field's, per parameter (``"dic_step"``) and
         in units of their combined standard errors (``"z"``), whether it passed
         (``"consistent"``; if not, the standard errors are inflated to
         cover the disagreement) and a sentence saying so
