@@ -43,6 +43,9 @@ difference is reported as ``"tilt-sample_tilt"`` and each alone is
 orientations the detector angles are seen only through the PC field
 across the map; a parameter in a direction the patterns do not constrain
 at all gets ``inf``.
+
+Layer 6 (calibration): may import geometry, io, patterns, indexing, plotting
+and calibration.
 """
 
 from __future__ import annotations

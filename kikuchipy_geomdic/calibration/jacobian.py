@@ -20,6 +20,9 @@ returns both, from the same forward map.
 Columns of parameters in :data:`~kikuchipy_geomdic.geometry.EQUIVALENT_PARAMETERS`
 are derived from their equivalent, never measured twice: the
 ``sample_tilt`` column is exactly ``-1`` times the ``tilt`` column.
+
+Layer 6 (calibration): may import geometry, io, patterns, indexing, plotting
+and calibration.
 """
 
 from __future__ import annotations

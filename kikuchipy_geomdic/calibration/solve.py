@@ -30,6 +30,9 @@ whose columns have equal norms, that is an equal and opposite split of
 the change of ``tilt - sample_tilt``. To keep one of the pair fixed
 instead, leave it out of the refined parameters. Dropped directions are
 reported (:attr:`Update.null_space`).
+
+Layer 6 (calibration): plain arrays in and out; imports nothing of the
+package.
 """
 
 from __future__ import annotations

@@ -11,6 +11,8 @@ errors against the truth side by side. Errors are scored as in
 :mod:`kikuchipy_geomdic.validation.study`: PCs at the map centre, and
 ``err_tilt_difference`` as the meaningful angle error of a tilt and sample
 tilt that only count through their difference.
+
+Layer 7 (validation): may import every layer below it.
 """
 
 from __future__ import annotations
