@@ -36,7 +36,7 @@ white, which can make it either way wrong.
 Degeneracies
 ------------
 ``tilt`` and ``sample_tilt`` enter kikuchipy's projection only through
-their difference (:data:`~kikuchipy_geomdic.geometry.EQUIVALENT_PARAMETERS`):
+their difference (:data:`~kikuchipy_geomdic.geometry.parameters.EQUIVALENT_PARAMETERS`):
 with both given there is one column for both, the bound of their
 difference is reported as ``"tilt-sample_tilt"`` and each alone is
 ``inf``, as in ``GeometryRefinementResult.standard_errors``. With free
@@ -235,7 +235,7 @@ def cramer_rao_bound(
         one pattern per map point, row-major).
     parameters
         Geometry parameters, from
-        :data:`~kikuchipy_geomdic.geometry.PARAMETERS`; default those
+        :data:`~kikuchipy_geomdic.geometry.parameters.PARAMETERS`; default those
         ``refine_geometry_dic`` refines. Parameters left out are taken as
         known.
     noise

@@ -7,7 +7,7 @@ per parameter unit):
 - :func:`finite_difference_jacobian`, the paper's Eqs. 4-5: simulate and
   measure ``b`` at ``p +- delta_k e_k``.
 - :func:`analytic_jacobian`: the simulated pattern moves by the forward
-  displacement ``d`` of :func:`~kikuchipy_geomdic.geometry.forward_map`,
+  displacement ``d`` of :func:`~kikuchipy_geomdic.geometry.projection.forward_map`,
   so ``b`` changes by ``-d``; ``d`` is evaluated at the measured feature
   positions and averaged as Eq. 2 averages (zero where an ROI had no
   vectors, divided by N). No simulation.
@@ -17,7 +17,7 @@ same derivatives per pattern instead of averaged, and also with respect
 to a small rotation of each pattern's crystal: :func:`pattern_jacobian`
 returns both, from the same forward map.
 
-Columns of parameters in :data:`~kikuchipy_geomdic.geometry.EQUIVALENT_PARAMETERS`
+Columns of parameters in :data:`~kikuchipy_geomdic.geometry.parameters.EQUIVALENT_PARAMETERS`
 are derived from their equivalent, never measured twice: the
 ``sample_tilt`` column is exactly ``-1`` times the ``tilt`` column.
 
@@ -159,7 +159,7 @@ def pattern_jacobian(
     j_rot
         (N, R, 2, 3), pixels per radian of a rotation ``g -> g * T`` of
         each crystal about the sample axes X, Y and Z (orix's right
-        factor, see :func:`~kikuchipy_geomdic.geometry.forward_map`), or
+        factor, see :func:`~kikuchipy_geomdic.geometry.projection.forward_map`), or
         None.
 
     Examples
@@ -256,7 +256,7 @@ def parameter_derivatives(
     points
         Map positions (N, 2).
     name
-        A parameter of :data:`~kikuchipy_geomdic.geometry.DEFAULT_STEPS`.
+        A parameter of :data:`~kikuchipy_geomdic.geometry.parameters.DEFAULT_STEPS`.
     step
         Central-difference step (its unit: PC fraction or degrees).
 

@@ -134,7 +134,7 @@ def refine_geometry_dic(
         Beam energy in kV.
     parameters
         Parameters to refine, from
-        :data:`~kikuchipy_geomdic.geometry.PARAMETERS`. Default the
+        :data:`~kikuchipy_geomdic.geometry.parameters.PARAMETERS`. Default the
         paper's six. Both ``tilt`` and ``sample_tilt`` may be given: only
         their difference is determined and its change is split equally
         (reported in :attr:`GeometryRefinementResult.degenerate`); leave
@@ -172,7 +172,7 @@ def refine_geometry_dic(
         paper solver passes them to kikuchipy.
     steps
         Central-difference step per parameter; defaults in
-        :data:`~kikuchipy_geomdic.geometry.DEFAULT_STEPS`.
+        :data:`~kikuchipy_geomdic.geometry.parameters.DEFAULT_STEPS`.
     rois
         ROI grid (rows, columns) of the displacement field.
     binning

@@ -48,7 +48,7 @@ class GeometryRefinementResult:
         refined angles and the PC field following from them, navigation
         shape equal to the signal's.
     geometry
-        The refined :class:`~kikuchipy_geomdic.geometry.MapGeometry`.
+        The refined :class:`~kikuchipy_geomdic.geometry.map_geometry.MapGeometry`.
     start_geometry
         The starting geometry.
     xmap
@@ -207,7 +207,7 @@ class GeometryRefinementResult:
     def plot_displacement(self, **kwargs):
         """Plot the average displacement field before and after (quiver).
 
-        See :func:`kikuchipy_geomdic.plotting.plot_displacement_fields`.
+        See :func:`kikuchipy_geomdic.plotting.calibration.plot_displacement_fields`.
         """
         from kikuchipy_geomdic import plotting
 
@@ -218,7 +218,7 @@ class GeometryRefinementResult:
     def plot_sensitivity(self, **kwargs):
         """Plot each parameter's sensitivity field (a Jacobian column).
 
-        See :func:`kikuchipy_geomdic.plotting.plot_sensitivity`.
+        See :func:`kikuchipy_geomdic.plotting.calibration.plot_sensitivity`.
         """
         from kikuchipy_geomdic import plotting
 
@@ -227,7 +227,7 @@ class GeometryRefinementResult:
         )
 
     def plot_coupling(self, **kwargs):
-        """Plot the coupling matrix. See :func:`kikuchipy_geomdic.plotting.plot_coupling`."""
+        """Plot the coupling matrix. See :func:`kikuchipy_geomdic.plotting.calibration.plot_coupling`."""
         from kikuchipy_geomdic import plotting
 
         return plotting.plot_coupling(self.coupling, self.parameter_names, **kwargs)
@@ -235,7 +235,7 @@ class GeometryRefinementResult:
     def plot_convergence(self, **kwargs):
         """Plot NCC and displacement per iteration.
 
-        See :func:`kikuchipy_geomdic.plotting.plot_convergence`.
+        See :func:`kikuchipy_geomdic.plotting.calibration.plot_convergence`.
         """
         from kikuchipy_geomdic import plotting
 

@@ -60,7 +60,7 @@ ADEQUACY_LIMIT = 3.0
 def _named_errors(names: Sequence[str], solved_errors) -> dict[str, float]:
     """Standard errors of the parameters *names* and of the determined tilt
     difference, from *solved_errors*, those of the solved parameters
-    (:func:`~kikuchipy_geomdic.geometry.solved_parameters`)."""
+    (:func:`~kikuchipy_geomdic.geometry.parameters.solved_parameters`)."""
     solved, split = solved_parameters(names)
     se = dict(zip(solved, map(float, solved_errors)))
     if "tilt" in names or "sample_tilt" in names:

@@ -260,7 +260,7 @@ def export_geometry(
     ----------
     geometry
         A detector with a single PC, or a
-        :class:`~kikuchipy_geomdic.geometry.MapGeometry` (its PC at its
+        :class:`~kikuchipy_geomdic.geometry.map_geometry.MapGeometry` (its PC at its
         reference map position is exported).
     convention
         See :func:`convention_name`.

@@ -227,7 +227,7 @@ def geometry_from_summary(summary: Mapping[str, Any], convention: str = "bruker"
     Returns
     -------
     geometry
-        :class:`~kikuchipy_geomdic.geometry.MapGeometry`; its
+        :class:`~kikuchipy_geomdic.geometry.map_geometry.MapGeometry`; its
         ``detector()`` is the calibrated detector of the whole map.
     """
     conv = convention_name(convention)

@@ -40,7 +40,9 @@ Data and credits
   Microanal. 19 (2013) 1255; data set under CC BY 4.0, shipped with
   kikuchipy), read offline from the kikuchipy installation, not copied
   into this package.
-Layer 7 (validation): may import geometry, io, patterns, indexing, plotting, calibration.
+
+Layer 7 (validation): may import geometry, io, patterns, indexing, plotting,
+calibration.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ Displacements
 The paper's x axis is the mean displacement magnitude between the
 starting and the true pattern sets. Two versions are reported, both from
 the geometry model
-(:meth:`~kikuchipy_geomdic.geometry.MapGeometry.displacement`), so free
+(:meth:`~kikuchipy_geomdic.geometry.map_geometry.MapGeometry.displacement`), so free
 of DIC tracking errors and defined also where DIC would no longer find
 the features: :func:`mean_displacement` averages the model field over
 every pixel of every calibration pattern per ROI, then takes the mean
@@ -94,7 +94,7 @@ def mean_displacement(
     Parameters
     ----------
     geometry_a, geometry_b
-        :class:`~kikuchipy_geomdic.geometry.MapGeometry` of one map and
+        :class:`~kikuchipy_geomdic.geometry.map_geometry.MapGeometry` of one map and
         detector shape.
     points
         Calibration points (N, 2) (row, column); default the whole map.
@@ -213,7 +213,7 @@ def sensitivities(
     parameters
         Parameter names.
     steps
-        ``delta_k``; default :data:`~kikuchipy_geomdic.geometry.DEFAULT_STEPS`.
+        ``delta_k``; default :data:`~kikuchipy_geomdic.geometry.parameters.DEFAULT_STEPS`.
     rois
         ROI grid.
 

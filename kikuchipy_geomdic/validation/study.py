@@ -111,7 +111,7 @@ def paper_geometry(
     Returns
     -------
     geometry
-        :class:`~kikuchipy_geomdic.geometry.MapGeometry` with the paper's
+        :class:`~kikuchipy_geomdic.geometry.map_geometry.MapGeometry` with the paper's
         PC and angles.
 
     Examples
@@ -204,7 +204,7 @@ class PerturbationStudy:
         write_table(self.table, path)
 
     def plot_success(self, **kwargs):
-        """Fig. 8A; see :func:`~kikuchipy_geomdic.plotting.plot_success`."""
+        """Fig. 8A; see :func:`~kikuchipy_geomdic.plotting.study.plot_success`."""
         from kikuchipy_geomdic import plotting
 
         kwargs.setdefault("ncc_success", NCC_SUCCESS)
@@ -212,20 +212,20 @@ class PerturbationStudy:
         return plotting.plot_success(self.table, **kwargs)
 
     def plot_heatmaps(self, **kwargs):
-        """Figs. 8C/D; see :func:`~kikuchipy_geomdic.plotting.plot_heatmaps`."""
+        """Figs. 8C/D; see :func:`~kikuchipy_geomdic.plotting.study.plot_heatmaps`."""
         from kikuchipy_geomdic import plotting
 
         return plotting.plot_heatmaps(self.table, **kwargs)
 
     def plot_errors(self, **kwargs):
-        """Fig. 9B; see :func:`~kikuchipy_geomdic.plotting.plot_errors`."""
+        """Fig. 9B; see :func:`~kikuchipy_geomdic.plotting.study.plot_errors`."""
         from kikuchipy_geomdic import plotting
 
         kwargs.setdefault("coupling", self.coupling)
         return plotting.plot_errors(self.table, **kwargs)
 
     def plot_normalised_errors(self, pair, **kwargs):
-        """Fig. 9A; see :func:`~kikuchipy_geomdic.plotting.plot_normalised_errors`."""
+        """Fig. 9A; see :func:`~kikuchipy_geomdic.plotting.study.plot_normalised_errors`."""
         from kikuchipy_geomdic import plotting
 
         return plotting.plot_normalised_errors(self.table, pair, **kwargs)

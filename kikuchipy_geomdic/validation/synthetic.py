@@ -74,7 +74,7 @@ def default_geometry(
     Returns
     -------
     geometry
-        :class:`~kikuchipy_geomdic.geometry.MapGeometry` with reference
+        :class:`~kikuchipy_geomdic.geometry.map_geometry.MapGeometry` with reference
         at the map centre.
     """
     ny, nx = navigation_shape

@@ -1,5 +1,5 @@
 """Tests of :mod:`kikuchipy_geomdic.indexing.variants` (domain maps in the parent
-crystal's frame) and of :func:`~kikuchipy_geomdic.plotting.plot_variants`.
+crystal's frame) and of :func:`~kikuchipy_geomdic.plotting.variants.plot_variants`.
 
 The ground truth is a synthetic BaTiO3 stripe map: ``xmap.prop["variant"]``
 is each point's true variant index *k* (its orientation is

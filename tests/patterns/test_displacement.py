@@ -1,6 +1,6 @@
 """Tests of the DIC displacement measurement (paper section 2.2).
 
-Ground truth is :func:`kikuchipy_geomdic.geometry.forward_map`: for a
+Ground truth is :func:`kikuchipy_geomdic.geometry.projection.forward_map`: for a
 geometry change it says where every pixel of pattern A lands in pattern
 B. The measured ROI displacement u_(r,i) (Eq. 1) is compared with the
 true displacement averaged exactly as the measurement is: at the same
