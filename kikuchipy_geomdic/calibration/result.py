@@ -227,7 +227,8 @@ class GeometryRefinementResult:
         )
 
     def plot_coupling(self, **kwargs):
-        """Plot the coupling matrix. See :func:`kikuchipy_geomdic.plotting.calibration.plot_coupling`."""
+        """Plot the coupling matrix. See
+        :func:`kikuchipy_geomdic.plotting.calibration.plot_coupling`."""
         from kikuchipy_geomdic import plotting
 
         return plotting.plot_coupling(self.coupling, self.parameter_names, **kwargs)

@@ -25,22 +25,26 @@ PC field (how the PC moves with the beam over the map) also only depends
 on this difference. Patterns and PC fields for (``sample_tilt`` 70,
 ``tilt`` 5) and (65, 0) are therefore identical, and a Jacobian with both
 columns has rank one less than its number of columns. This is exact, not a
-strong coupling: :data:`~kikuchipy_geomdic.geometry.parameters.EQUIVALENT_PARAMETERS` states it so that the
-solver treats the pair deliberately rather than letting damping split it.
+strong coupling:
+:data:`~kikuchipy_geomdic.geometry.parameters.EQUIVALENT_PARAMETERS` states
+it so that the solver treats the pair deliberately rather than letting
+damping split it.
 
 Pixel coordinates
 -----------------
 Functions here take and return pixel coordinates ``(x, y)`` with the centre
 of pixel ``(row j, column i)`` at ``(i, j)``, as OpenCV and scikit-image
 report feature positions. kikuchipy's simulation places that centre at
-``(i + 0.5, j + 0.5)``; the conversion happens only inside :func:`~kikuchipy_geomdic.geometry.projection.forward_map`.
+``(i + 0.5, j + 0.5)``; the conversion happens only inside
+:func:`~kikuchipy_geomdic.geometry.projection.forward_map`.
 
 Modules
 -------
 :mod:`~kikuchipy_geomdic.geometry.parameters` (names, units, steps),
 :mod:`~kikuchipy_geomdic.geometry.projection` (rotation, PC field, forward
 map), :mod:`~kikuchipy_geomdic.geometry.rotations` (rotation vectors),
-:mod:`~kikuchipy_geomdic.geometry.map_geometry` (:class:`~kikuchipy_geomdic.geometry.map_geometry.MapGeometry`) and
+:mod:`~kikuchipy_geomdic.geometry.map_geometry`
+(:class:`~kikuchipy_geomdic.geometry.map_geometry.MapGeometry`) and
 :mod:`~kikuchipy_geomdic.geometry.maps` (navigation shapes, flat indices);
 their public names are exported here.
 
