@@ -13,7 +13,7 @@ from kikuchipy.signals import EBSD
 from orix.crystal_map import CrystalMap
 
 from kikuchipy_geomdic.geometry import DEFAULT_STEPS, check_parameters
-from kikuchipy_geomdic.geometry.maps import check_signal_and_detector
+from kikuchipy_geomdic.geometry.maps import check_signal_and_detector, navigation_shape
 from kikuchipy_geomdic.patterns.phases import check_phase
 from kikuchipy_geomdic.patterns.simulation import check_master_pattern
 
@@ -23,8 +23,7 @@ def _check_inputs(signal, xmap, detector, master_pattern, phase, nav):
     if not isinstance(xmap, CrystalMap):
         raise TypeError(f"xmap must be an orix CrystalMap, not {type(xmap).__name__}")
     check_master_pattern(master_pattern)
-    xshape = xmap.shape if len(xmap.shape) == 2 else (1,) + tuple(xmap.shape)
-    if tuple(xshape) != nav or xmap.size != nav[0] * nav[1]:
+    if len(xmap.shape) > 2 or navigation_shape(xmap) != nav or xmap.size != nav[0] * nav[1]:
         raise ValueError(
             f"xmap shape {xmap.shape} (with {xmap.size} points) does not match the "
             f"signal's navigation shape {nav}"

@@ -262,7 +262,7 @@ def _prepare_problem(
     ops = ref_kw.pop("pseudo_symmetry_ops", None)
     if pseudo_symmetry_ops is not None:
         ops = pseudo_symmetry_ops
-    pts = _select_points(points, xmap, phase_id, nav, names)
+    pts = _select_points(points, xmap, phase_id, nav)
     exp = _experimental(signal, pts, nav)
     lookup = np.full(nav[0] * nav[1], -1)
     lookup[xmap.id] = np.arange(xmap.size)

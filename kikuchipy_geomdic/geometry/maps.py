@@ -32,7 +32,8 @@ def navigation_shape(obj) -> tuple[int, int]:
     Returns
     -------
     shape
-        (rows, columns); a 1D map of *n* points is (1, n).
+        (rows, columns); a 1D map of *n* points is (1, n), a single point
+        (1, 1).
 
     Raises
     ------
@@ -53,8 +54,9 @@ def navigation_shape(obj) -> tuple[int, int]:
         nav = tuple(int(n) for n in obj.shape)
     else:
         nav = tuple(int(n) for n in obj.axes_manager.navigation_shape[::-1])
-    if len(nav) == 1:
-        return (1, nav[0])
+    if len(nav) <= 1:
+        # A crystal map of one point has shape ()
+        return (1, nav[0] if nav else 1)
     if len(nav) != 2:
         raise ValueError(f"The signal must have a 1D or 2D navigation shape, not {nav}")
     return nav
