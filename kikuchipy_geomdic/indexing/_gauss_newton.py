@@ -33,9 +33,32 @@ def _quat_step(w, q):
     return out / norm
 
 
+#: Largest lengthening of a Gauss-Newton step by the acceleration
+MAX_ACCELERATION = 10.0
+
+#: With acceleration, an accepted step that raised the NCC by less than
+#: this ends the refinement as converged: far below the NCC differences
+#: of 180 deg variants (1e-3) that the comparison resolves
+NCC_STALL = 1e-6
+
+
 @nb.njit(cache=True, nogil=True)
-def _gauss_newton(e, q, dc, upper, lower, scale, max_eval, tol, max_step):
-    """Refine one orientation; return (q, ncc, evaluations, converged)."""
+def _gauss_newton(e, q, dc, upper, lower, scale, max_eval, tol, max_step, accelerate):
+    """Refine one orientation; return (q, ncc, evaluations, converged).
+
+    With *accelerate*, a step that points along the last accepted one and
+    is shorter by a ratio ``r`` is lengthened to ``1 / (1 - r)`` of it (at
+    most :data:`MAX_ACCELERATION`): the remaining sum of a geometric
+    series of steps. At full resolution on camera-blurred patterns the
+    sharp simulation's curvature is larger than the NCC's, so plain steps
+    fall short by a constant factor and converge linearly (measured on
+    BaTiO3 ``Camera(dose=150)`` patterns of 120 px, variants started next
+    to their optimum: 0.18 deg left after 10 evaluations, 0.04 accelerated;
+    the NCC 90th percentile short of the optimum after 8 evaluations
+    6e-3 plain, 6e-4 accelerated). An overshoot is halved back as any.
+    Accelerated, a step that gains less than :data:`NCC_STALL` in NCC
+    also ends the refinement (converged): the steps then dither between
+    the master pattern's cells without reaching *tol*."""
     n = e.size
     value = np.empty(n)
     jac = np.empty((n, 3))
@@ -45,6 +68,7 @@ def _gauss_newton(e, q, dc, upper, lower, scale, max_eval, tol, max_step):
     q_best = q.copy()
     ncc_best = -2.0
     w = np.zeros(3)
+    w_last = np.zeros(3)  # the last accepted step
     halvings = 0
     converged = False
     evals = 0
@@ -72,8 +96,14 @@ def _gauss_newton(e, q, dc, upper, lower, scale, max_eval, tol, max_step):
             q = _quat_step(w, q_best)
             continue
         halvings = 0
+        gained = ncc - ncc_best
+        if ncc_best > -2.0:
+            w_last[:] = w
         q_best = q
         ncc_best = ncc
+        if accelerate and gained < NCC_STALL:
+            converged = True
+            break
         # Gain and offset at this orientation, then the 5 x 5 normal
         # equations of (w, gain, offset) on the residual they leave
         gain = sxe / sxx if sxx > 0 else 0.0
@@ -101,20 +131,36 @@ def _gauss_newton(e, q, dc, upper, lower, scale, max_eval, tol, max_step):
             a_mat[i, i] += 1e-12
         x = np.linalg.solve(a_mat, rhs)
         step = math.sqrt(x[0] ** 2 + x[1] ** 2 + x[2] ** 2)
-        shrink = 1.0 if step <= max_step else max_step / step
-        for i in range(3):
-            w[i] = x[i] * shrink
         if step < tol:
             converged = True
             break
+        factor = _acceleration(x, w_last, step) if accelerate else 1.0
+        shrink = 1.0 if step * factor <= max_step else max_step / (step * factor)
+        for i in range(3):
+            w[i] = x[i] * factor * shrink
         q = _quat_step(w, q_best)
     return q_best, ncc_best, evals, converged
 
 
 @nb.njit(cache=True, nogil=True)
+def _acceleration(x, w_last, step):
+    """Factor lengthening the step *x* (length *step*) that continues the
+    last accepted step *w_last* shorter (1 where it turns or grows)."""
+    last = w_last[0] ** 2 + w_last[1] ** 2 + w_last[2] ** 2
+    if last <= 0.0:
+        return 1.0
+    dot = x[0] * w_last[0] + x[1] * w_last[1] + x[2] * w_last[2]
+    ratio = dot / last
+    if dot < 0.8 * step * math.sqrt(last) or not 0.0 < ratio < 1.0:
+        return 1.0
+    return min(1.0 / (1.0 - ratio), MAX_ACCELERATION)
+
+
+@nb.njit(cache=True, nogil=True)
 def _refine_stack(
-    patterns, quats, pcs, nrows, ncols, om, upper, lower, scale, max_eval, tol, step
-):
+    patterns, quats, pcs, nrows, ncols, om, upper, lower, scale, max_eval, tol, step,
+    accelerate=False,
+):  # fmt: skip
     n = patterns.shape[0]
     q_out = np.empty((n, 4))
     ncc = np.empty(n)
@@ -128,7 +174,7 @@ def _refine_stack(
             ncc[p] = np.nan
             continue
         q, c, k, ok = _gauss_newton(
-            e, quats[p].copy(), dc, upper, lower, scale, max_eval, tol, step
+            e, quats[p].copy(), dc, upper, lower, scale, max_eval, tol, step, accelerate
         )
         q_out[p] = q
         ncc[p] = c

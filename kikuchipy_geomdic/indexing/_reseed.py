@@ -88,6 +88,13 @@ def _reseed(d, out, todo, pcs, nav, options, start, sym) -> np.ndarray:
     its own *start*."""
     rows, cols = nav
     ops = options["ops"]
+    if ops is not None:
+        # A seed is a neighbour's refined orientation, next to the point's
+        # own in its variant: the coarse stages that widen the basin for
+        # users' starts are not needed; the seed's variants are compared
+        # at full resolution alone (measured on the users map of dose 150,
+        # seed 0: 14 fewer projections per point of the map, same calls)
+        options = dict(options, levels=(1,))
     equivalents = _equivalents(ops, sym)
     reseeded = np.zeros(rows * cols, dtype=bool)
     valid = todo.reshape(nav) & np.isfinite(out[:, _SCORE]).reshape(nav)
@@ -117,7 +124,8 @@ def _reseed(d, out, todo, pcs, nav, options, start, sym) -> np.ndarray:
         counts = [len(s) for s in seeds]
         idx = np.repeat(np.arange(len(points)), counts)
         flat = points[:, 0] * cols + points[:, 1]
-        trial = _refine_points(patterns[idx], np.concatenate(seeds), pcs[flat[idx]], **options)
+        floor = out[flat[idx], _SCORE] if ops is not None else None
+        trial = _trials(patterns[idx], np.concatenate(seeds), pcs[flat[idx]], options, floor)
         changed = False
         for i, f in enumerate(flat):
             mine = trial[idx == i]
@@ -132,6 +140,27 @@ def _reseed(d, out, todo, pcs, nav, options, start, sym) -> np.ndarray:
         if not changed:
             break
     return reseeded
+
+
+def _trials(patterns, seeds, pcs, options, floor) -> np.ndarray:
+    """:func:`_refine_points` of the seeds, in parts on dask's scheduler.
+
+    Every row is refined on its own, so the parts give the rows one call
+    gives; run as one call, reseeding took one core (measured: a quarter
+    of the work of the users map of dose 150 on one of two threads)."""
+    import os
+
+    import dask
+
+    threads = int(dask.config.get("num_workers", None) or os.cpu_count() or 1)
+    parts = [r for r in np.array_split(np.arange(len(seeds)), 2 * threads) if r.size]
+    tasks = [
+        dask.delayed(_refine_points)(
+            patterns[r], seeds[r], pcs[r], **options, floor=None if floor is None else floor[r]
+        )
+        for r in parts
+    ]
+    return np.concatenate(dask.compute(*tasks))
 
 
 def _seen(q, old, equivalents, min_angle: float = 1.0) -> bool:

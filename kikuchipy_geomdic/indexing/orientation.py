@@ -179,9 +179,16 @@ class OrientationResult:
 PX_DECIMALS = 2
 
 
-def _stage(patterns, q, pcs, om, arrays, binning, sigma, max_step):
+def _stage(
+    patterns, q, pcs, om, arrays, binning, sigma, max_step, max_evaluations=None, accelerate=False
+):
     """One stage of the schedule: every pattern binned by *binning*, both
-    it and the master pattern smoothed by *sigma* degrees."""
+    it and the master pattern smoothed by *sigma* degrees; at most
+    *max_evaluations* projections per pattern (default
+    :data:`MAX_EVALUATIONS`), Gauss-Newton steps accelerated or not
+    (``_gauss_newton``)."""
+    if max_evaluations is None:
+        max_evaluations = MAX_EVALUATIONS[binning == 1]
     n, shape = patterns.shape[0], patterns.shape[1:]
     b = binning
     level = bin_pattern(patterns, b, np.float32) if b > 1 else patterns
@@ -209,9 +216,10 @@ def _stage(patterns, q, pcs, om, arrays, binning, sigma, max_step):
         mp.upper,
         mp.lower,
         float(mp.scale),
-        MAX_EVALUATIONS[b == 1],
+        max_evaluations,
         np.deg2rad(TOLERANCE if b == 1 else COARSE_TOLERANCE),
         np.deg2rad(max_step),
+        accelerate,
     )
 
 
@@ -308,13 +316,29 @@ def _coarse_stages(patterns, quaternions, pcs, om, arrays, levels, max_step):
     patterns, q0, pcs, om = _as_stack(patterns, quaternions, pcs, om)
     schedule = _schedule(patterns.shape[1:], levels)[:-1]
     q, _, _, evaluations = _descend(patterns, q0, pcs, om, arrays, schedule, max_step)
-    ncc = _full_ncc(patterns, q, pcs, om, arrays)
     ncc0 = _full_ncc(patterns, q0, pcs, om, arrays)
+    if not schedule:
+        # No coarse stage (seeds next to their optimum): the seeds scored
+        zero = np.zeros(len(q0), dtype=bool)
+        return OrientationResult(Rotation(q0), ncc0, evaluations + 1, zero)
+    ncc = _full_ncc(patterns, q, pcs, om, arrays)
     evaluations += 2
     worse = ncc0 > ncc
     q = np.where(worse[:, None], q0, q)
     ncc = np.where(worse, ncc0, ncc)
     return OrientationResult(Rotation(q), ncc, evaluations, np.zeros(len(q), dtype=bool))
+
+
+def _fine_stage(patterns, quaternions, pcs, om, arrays, max_step, max_evaluations):
+    """The full-resolution stage alone with accelerated steps, from
+    *quaternions*: for candidates started next to their optimum (the
+    variants of a refined orientation). An :class:`OrientationResult`."""
+    patterns, q0, pcs, om = _as_stack(patterns, quaternions, pcs, om)
+    q, ncc, k, conv = _stage(
+        patterns, q0, pcs, om, arrays, 1, 0.0, max_step, max_evaluations, accelerate=True
+    )
+    q = np.where(q[:, :1] < 0, -q, q)
+    return OrientationResult(Rotation(q), ncc, k.astype(np.float64), conv)
 
 
 def _as_stack(patterns, quaternions, pcs, om):
