@@ -203,8 +203,10 @@ def test_master_pattern_of_another_phase_is_refused(sm, bto_mp):
 def test_navigation_shape_and_flat_index(sm):
     assert navigation_shape(sm.signal) == NAV == navigation_shape(sm.xmap)
     assert navigation_shape(sm.signal.inav[:, 0]) == (1, NAV[1])
+    # One pattern (a signal without navigation axes, a crystal map of shape ())
+    assert navigation_shape(sm.signal.inav[0, 0]) == (1, 1) == navigation_shape(sm.xmap[0, 0])
     with pytest.raises(ValueError, match="1D or 2D"):
-        navigation_shape(sm.signal.inav[0, 0])
+        navigation_shape(kp.signals.EBSD(np.zeros((2, 2, 2, 5, 5))))
     pts = np.array([[0, 0], [1, 2], [3, 4]])
     np.testing.assert_array_equal(flat_index(pts, NAV), [0, 7, 19])
     # The order of a whole crystal map's points and of the flattened data
