@@ -22,8 +22,29 @@ _SQRT_PI_HALF = math.sqrt(math.pi / 2)
 _SQRT_PI_OVER_2 = math.sqrt(math.pi) / 2
 _TWO_OVER_SQRT_PI = 2 / math.sqrt(math.pi)
 
+#: Odd minimax polynomial of arctan on [-1, 1] (degree 23, in t^2 from
+#: t^0): max abs error 2.2e-11 rad against math.atan (dense grid with the
+#: endpoints, tests/indexing), about 1e-8 of a master-pattern pixel
+_ATAN_COEFFICIENTS = (
+    0.9999999994302322,
+    -0.33333327040819816,
+    0.19999793542823519,
+    -0.14282551428094534,
+    0.11083671375616534,
+    -0.08941119642994749,
+    0.07143078008405897,
+    -0.0525146185704032,
+    0.032232639411184386,
+    -0.014721269907144943,
+    0.004293668901864392,
+    -0.0005877040397836429,
+)
 
-@nb.njit(cache=True, nogil=True)
+
+# fastmath: the divisions become multiplications by reciprocals (1 ulp),
+# half the time (0.098 -> 0.049 ms for 120 x 120 px), a third of a
+# projection's by _project_stack
+@nb.njit(cache=True, nogil=True, fastmath=True)
 def _direction_cosines(pc, nrows, ncols, om):
     """Unit vectors (sample frame) of the detector pixels, kikuchipy's."""
     n = nrows * ncols
@@ -61,6 +82,21 @@ def _rotation_matrix(q):
 
 
 @nb.njit(cache=True, nogil=True, fastmath=True)
+def _atan_unit(t):
+    """Arctangent of ``|t| <= 1`` by :data:`_ATAN_COEFFICIENTS`.
+
+    libm's ``atan`` was a quarter of a projection's time; this inlined
+    polynomial takes 0.30 -> 0.24 ms for 120 x 120 px (Horner: the loop's
+    pixels overlap its dependency chain)."""
+    c = _ATAN_COEFFICIENTS
+    u = t * t
+    p = c[11]
+    for i in range(10, -1, -1):
+        p = p * u + c[i]
+    return t * p
+
+
+@nb.njit(cache=True, nogil=True, fastmath=True)
 def _project(q, dc, upper, lower, scale, value, jac, with_jac, gradient=None):
     """Project one pattern (kikuchipy's Lambert lookup, bilinear) into
     *value*; with *with_jac*, its derivative by a crystal rotation
@@ -87,7 +123,7 @@ def _project(q, dc, upper, lower, scale, value, jac, with_jac, gradient=None):
             ly = 0.0
         elif abs(y) <= abs(x):
             sg = 1.0 if x > 0 else -1.0
-            t = math.atan(y / x)
+            t = _atan_unit(y / x)
             lx = sg * s * _SQRT_PI_OVER_2
             ly = sg * s * _TWO_OVER_SQRT_PI * t
             if with_jac:
@@ -99,7 +135,7 @@ def _project(q, dc, upper, lower, scale, value, jac, with_jac, gradient=None):
                 hz = sg * _TWO_OVER_SQRT_PI * t * dsdz
         else:
             sg = 1.0 if y > 0 else -1.0
-            t = math.atan(x / y)
+            t = _atan_unit(x / y)
             lx = sg * s * _TWO_OVER_SQRT_PI * t
             ly = sg * s * _SQRT_PI_OVER_2
             if with_jac:
@@ -131,9 +167,11 @@ def _project(q, dc, upper, lower, scale, value, jac, with_jac, gradient=None):
         m10 = mp[i1, j0]
         m01 = mp[i0, j1]
         m11 = mp[i1, j1]
-        value[k] = (
-            m00 * (1 - di) * (1 - dj) + m10 * di * (1 - dj) + m01 * (1 - di) * dj + m11 * di * dj
-        )
+        # Bilinear as two lerps: the differences are the derivative's too
+        # (with the Jacobian 0.33 -> 0.31 ms for 120 x 120 px)
+        a0 = m00 + di * (m10 - m00)
+        a1 = m01 + di * (m11 - m01)
+        value[k] = a0 + dj * (a1 - a0)
         if with_jac:
             dvdu = fac * ((1 - dj) * (m10 - m00) + dj * (m11 - m01))
             dvdv = fac * ((1 - di) * (m01 - m00) + di * (m11 - m10))

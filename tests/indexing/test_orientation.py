@@ -8,6 +8,8 @@ against central differences, so the solver's optimum is kikuchipy's.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from kikuchipy.detectors import EBSDDetector
@@ -15,7 +17,7 @@ from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.indexing import orientation as ori
 from kikuchipy_geomdic.indexing._gauss_newton import _quat_step
-from kikuchipy_geomdic.indexing._lambert import _direction_cosines, _project
+from kikuchipy_geomdic.indexing._lambert import _atan_unit, _direction_cosines, _project
 from kikuchipy_geomdic.indexing.variants import variant_operators
 from kikuchipy_geomdic.patterns.simulation import simulate_patterns
 from kikuchipy_geomdic.validation import synthetic
@@ -47,6 +49,13 @@ def test_projection_equals_kikuchipy(si_mp, det):
     scale = np.abs(theirs).max()
     # float32 master pattern, float64 kernel: equal to float32 rounding
     np.testing.assert_allclose(ours, theirs, rtol=0, atol=1e-5 * scale)
+
+
+def test_polynomial_arctangent_within_its_bound():
+    # The kernel's arctangent on [-1, 1], endpoints included, against libm
+    t = np.concatenate([np.linspace(-1, 1, 200_001), [-1.0, -0.0, 1.0]])
+    err = max(abs(_atan_unit(v) - math.atan(v)) for v in t)
+    assert err < 3e-11
 
 
 def test_projection_with_pc_per_pattern_and_batio3(bto_mp):
