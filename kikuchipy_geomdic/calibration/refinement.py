@@ -22,7 +22,8 @@ solver's loop on the fits of ``_dic_fit``, or the paper's loop,
 was done to the patterns, ``_processing``), and builds the
 :class:`~kikuchipy_geomdic.calibration.result.GeometryRefinementResult`
 (:mod:`~kikuchipy_geomdic.calibration.result`). Standard errors,
-determinacy and adequacy are in ``_uncertainty``, the progress bar in
+determinacy and adequacy are in
+:mod:`~kikuchipy_geomdic.calibration.uncertainty`, the progress bar in
 ``_progress``.
 
 Layer 6 (calibration): may import geometry, io, patterns, indexing, plotting
