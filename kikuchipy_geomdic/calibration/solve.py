@@ -420,8 +420,21 @@ class JointSystem:
         prior: float | None = None,
         rtol: float = 1e-10,
     ) -> JointSystem:
-        """The system of Jacobians *j_geo* (N, M, K), *j_rot* (N, M, 3),
-        *weights* (N, M) and *prior*, as in :func:`solve_joint`."""
+        """Build the normal equations of a joint solve.
+
+        Parameters
+        ----------
+        j_geo, j_rot, weights, prior, rtol
+            As in :func:`solve_joint`: geometry Jacobians (N, M, K),
+            rotation Jacobians (N, M, 3), inverse variances (N, M), the
+            orientation prior (radians or None) and the tolerance below
+            which a direction counts as undetermined.
+
+        Returns
+        -------
+        system
+            The :class:`JointSystem`, to :meth:`solve` for residuals.
+        """
         jg = np.asarray(j_geo, dtype=np.float64)
         jr = np.asarray(j_rot, dtype=np.float64)
         w = np.asarray(weights, dtype=np.float64)
@@ -481,18 +494,22 @@ class JointSystem:
     def solve(
         self, residual: np.ndarray, offsets: np.ndarray | None = None, damping: float = 0.0
     ) -> JointUpdate:
-        """The :class:`JointUpdate` for *residual* (N, M), with the
-        orientations *offsets* (N, 3) from their starts and *damping*,
-        as in :func:`solve_joint`."""
-        jg, jr, w, full, mu, v, keep = (
-            self.jg,
-            self.jr,
-            self.w,
-            self.full,
-            self.mu,
-            self.v,
-            self.keep,
-        )
+        """Solve the system for one residual.
+
+        Parameters
+        ----------
+        residual, offsets, damping
+            As in :func:`solve_joint`: the measured residual (N, M), each
+            orientation's rotation from its start (N, 3; default zero)
+            and the Levenberg-Marquardt damping.
+
+        Returns
+        -------
+        update
+            :class:`JointUpdate`, the same as :func:`solve_joint` gives.
+        """
+        jg, jr, w, full = self.jg, self.jr, self.w, self.full
+        mu, v, keep = self.mu, self.v, self.keep
         b = np.asarray(residual, dtype=np.float64)
         if b.shape != w.shape:
             raise ValueError(f"residual {b.shape} differs from the Jacobians' {w.shape} (N, M)")

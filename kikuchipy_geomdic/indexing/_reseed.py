@@ -10,6 +10,9 @@ Layer 4 (indexing): may import geometry, io, patterns and indexing.
 
 from __future__ import annotations
 
+import os
+
+import dask
 import numpy as np
 from orix.quaternion import Rotation
 
@@ -148,10 +151,6 @@ def _trials(patterns, seeds, pcs, options, floor) -> np.ndarray:
     Every row is refined on its own, so the parts give the rows one call
     gives; run as one call, reseeding took one core (measured: a quarter
     of the work of the users map of dose 150 on one of two threads)."""
-    import os
-
-    import dask
-
     threads = int(dask.config.get("num_workers", None) or os.cpu_count() or 1)
     parts = [r for r in np.array_split(np.arange(len(seeds)), 2 * threads) if r.size]
     tasks = [
