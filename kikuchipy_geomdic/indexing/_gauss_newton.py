@@ -12,7 +12,7 @@ import math
 import numba as nb
 import numpy as np
 
-from kikuchipy_geomdic.indexing._lambert import _direction_cosines, _project
+from kikuchipy_geomdic.indexing._lambert import SUMS, _direction_cosines, _project
 
 
 @nb.njit(cache=True, nogil=True)
@@ -60,9 +60,11 @@ def _gauss_newton(e, q, dc, upper, lower, scale, max_eval, tol, max_step, accele
     also ends the refinement (converged): the steps then dither between
     the master pattern's cells without reaching *tol*."""
     n = e.size
-    value = np.empty(n)
-    jac = np.empty((n, 3))
-    em = e.mean()
+    sums = np.empty(SUMS)
+    none1 = np.empty(1)  # nothing per pixel is stored
+    none2 = np.empty((1, 3))
+    se = e.sum()
+    em = se / n
     ec = e - em
     enorm = math.sqrt((ec * ec).sum())
     q_best = q.copy()
@@ -75,15 +77,12 @@ def _gauss_newton(e, q, dc, upper, lower, scale, max_eval, tol, max_step, accele
     a_mat = np.empty((5, 5))
     rhs = np.empty(5)
     while evals < max_eval:
-        _project(q, dc, upper, lower, scale, value, jac, True)
+        _project(q, dc, upper, lower, scale, none1, none2, True, None, e, sums)
         evals += 1
-        sm = value.mean()
-        sxx = 0.0
-        sxe = 0.0
-        for k in range(n):
-            t = value[k] - sm
-            sxx += t * t
-            sxe += t * ec[k]
+        sv, svv, sve = sums[0], sums[1], sums[2]
+        sm = sv / n
+        sxx = svv - sv * sm
+        sxe = sve - sm * se
         ncc = sxe / math.sqrt(sxx) / enorm if sxx > 0 and enorm > 0 else 0.0
         if ncc < ncc_best:
             # The step overshot: go back and try half of it
@@ -105,23 +104,25 @@ def _gauss_newton(e, q, dc, upper, lower, scale, max_eval, tol, max_step, accele
             converged = True
             break
         # Gain and offset at this orientation, then the 5 x 5 normal
-        # equations of (w, gain, offset) on the residual they leave
+        # equations of (w, gain, offset) on the residual they leave, from
+        # the pixel sums: columns (gain * j, v, 1), residual e - gain v - off
         gain = sxe / sxx if sxx > 0 else 0.0
         off = em - gain * sm
-        a_mat[:] = 0.0
-        rhs[:] = 0.0
-        col = np.empty(5)
-        for k in range(n):
-            col[0] = gain * jac[k, 0]
-            col[1] = gain * jac[k, 1]
-            col[2] = gain * jac[k, 2]
-            col[3] = value[k]
-            col[4] = 1.0
-            r = e[k] - gain * value[k] - off
-            for i in range(5):
-                rhs[i] += col[i] * r
-                for j in range(i, 5):
-                    a_mat[i, j] += col[i] * col[j]
+        a_mat[0, 0] = gain * gain * sums[12]
+        a_mat[0, 1] = gain * gain * sums[13]
+        a_mat[0, 2] = gain * gain * sums[14]
+        a_mat[1, 1] = gain * gain * sums[15]
+        a_mat[1, 2] = gain * gain * sums[16]
+        a_mat[2, 2] = gain * gain * sums[17]
+        for i in range(3):
+            a_mat[i, 3] = gain * sums[6 + i]
+            a_mat[i, 4] = gain * sums[3 + i]
+            rhs[i] = gain * (sums[9 + i] - gain * sums[6 + i] - off * sums[3 + i])
+        a_mat[3, 3] = svv
+        a_mat[3, 4] = sv
+        a_mat[4, 4] = n
+        rhs[3] = sve - gain * svv - off * sv
+        rhs[4] = se - gain * sv - off * n
         for i in range(5):
             for j in range(i):
                 a_mat[i, j] = a_mat[j, i]

@@ -38,9 +38,11 @@ VARIANT_EVALUATIONS = 12
 
 #: A reseeding trial whose refined best scores below this fraction of the
 #: point's own score does not refine its other variants (a seed's result
-#: replaces the point's only where it scores better; 180 deg partners
-#: differ from the best in the third decimal of the NCC)
-HOPELESS = 0.9
+#: replaces the point's only where it scores better; at a neighbour's
+#: orientation the right variant scores best). Measured on the users maps
+#: (doses 30 and 150, seeds 0 and 1): 1.0 kept every point of 0.9 and
+#: saved 4 % of the projections
+HOPELESS = 1.0
 
 
 def _width(ops) -> int:

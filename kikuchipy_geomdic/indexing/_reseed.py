@@ -1,9 +1,11 @@
 """The reseeding stage of
 :func:`~kikuchipy_geomdic.indexing.reindex.refine_map`: the points of a
 map that score poorly for where they are
-(:func:`~kikuchipy_geomdic.indexing.orientation.poor_points`) refined
-again from their neighbours' distinct orientations, a result kept only
-where it scores better.
+(:func:`~kikuchipy_geomdic.indexing.orientation.poor_points`) or sit a
+fraction of a degree from neighbours that agree with one another
+(:func:`~kikuchipy_geomdic.indexing.orientation.neighbour_disagreement`)
+refined again from their neighbours' distinct orientations, a result kept
+only where it scores better.
 
 Layer 4 (indexing): may import geometry, io, patterns and indexing.
 """
@@ -24,7 +26,13 @@ from kikuchipy_geomdic.indexing._point_refinement import (
     _refine_points,
 )
 from kikuchipy_geomdic.indexing._quaternions import _qmul
-from kikuchipy_geomdic.indexing._seeds import neighbour_seeds, poor_points
+from kikuchipy_geomdic.indexing._seeds import (
+    DISAGREEMENT,
+    DISAGREEMENT_MAX,
+    neighbour_disagreement,
+    neighbour_seeds,
+    poor_points,
+)
 
 
 def _proper_symmetry(master_pattern) -> np.ndarray:
@@ -46,7 +54,9 @@ def _equivalents(ops, sym) -> np.ndarray:
     return _qmul(sym[:, None, :], ops_all[None, :, :]).reshape(-1, 4)
 
 
-def _distinct(seeds: np.ndarray, equivalents: np.ndarray, min_angle: float = 1.0) -> np.ndarray:
+def _distinct(
+    seeds: np.ndarray, equivalents: np.ndarray, min_angle: float = DISAGREEMENT
+) -> np.ndarray:
     """The seeds (k, 4) whose candidate sets differ: a seed that is an
     equivalent (symmetry times variant) of an earlier one within
     *min_angle* degrees adds nothing, as its variants are refined anyway."""
@@ -79,8 +89,9 @@ RESEED_PASSES = 4
 
 
 def _reseed(d, out, todo, pcs, nav, options, start, sym) -> np.ndarray:
-    """Refine poor points again from their neighbours' orientations,
-    in place in *out*; return which points a neighbour's seed improved.
+    """Refine poor and disagreeing points again from their neighbours'
+    orientations, in place in *out*; return which points a neighbour's
+    seed improved.
 
     A seed's result replaces the point's own only where it scores better
     on the point's own pattern, so reseeding never lowers a score. Seeds
@@ -103,14 +114,21 @@ def _reseed(d, out, todo, pcs, nav, options, start, sym) -> np.ndarray:
     valid = todo.reshape(nav) & np.isfinite(out[:, _SCORE]).reshape(nav)
     tried: dict[int, list[np.ndarray]] = {}
     for _ in range(RESEED_PASSES):
-        poor = poor_points(out[:, _SCORE].reshape(nav), valid)
-        if not poor.any():
-            break
         q_map = out[:, _Q].reshape(rows, cols, 4)
+        poor = poor_points(out[:, _SCORE].reshape(nav), valid)
+        # A point that disagrees with its neighbours but scores as well as
+        # they do is tried from the neighbours that agree with theirs
+        with np.errstate(invalid="ignore"):
+            angle = neighbour_disagreement(q_map, valid, equivalents)
+            agree = angle <= DISAGREEMENT
+            disagree = valid & ~poor & (angle > DISAGREEMENT) & (angle <= DISAGREEMENT_MAX)
+        if not (poor | disagree).any():
+            break
         points, seeds = [], []
-        for p in np.argwhere(poor):
+        for p in np.argwhere(poor | disagree):
             f = int(p[0] * cols + p[1])
-            s = _distinct(neighbour_seeds(q_map, tuple(p), valid & ~poor), equivalents)
+            usable = valid & ~poor & (agree if disagree[tuple(p)] else True)
+            s = _distinct(neighbour_seeds(q_map, tuple(p), usable), equivalents)
             # A seed refined in an earlier pass gives the same result again
             done = tried.setdefault(f, [])
             if done and len(s):
@@ -162,6 +180,6 @@ def _trials(patterns, seeds, pcs, options, floor) -> np.ndarray:
     return np.concatenate(dask.compute(*tasks))
 
 
-def _seen(q, old, equivalents, min_angle: float = 1.0) -> bool:
+def _seen(q, old, equivalents, min_angle: float = DISAGREEMENT) -> bool:
     cos_half = np.cos(np.deg2rad(min_angle) / 2)
     return bool((np.abs(_qmul(equivalents, q[None, :]) @ old.T) >= cos_half).any())

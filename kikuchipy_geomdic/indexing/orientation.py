@@ -30,7 +30,8 @@ and :func:`refine_arrays` on plain arrays); it also presents, from the
 private modules that hold them, :func:`master_pattern_arrays` (what the
 kernel projects from), :func:`project_patterns` (the kernel's own
 projection, for checks), :func:`neighbour_seeds` with
-:func:`poor_points` (the rule for misindexed starts on a map) and
+:func:`poor_points` and :func:`neighbour_disagreement` (what finds
+misindexed starts on a map) and
 :func:`compare_variants` (which pseudo-symmetric variant a pattern
 shows). The numba kernels are in ``_lambert`` (projection) and
 ``_gauss_newton`` (the per-pattern step).
@@ -60,7 +61,7 @@ from kikuchipy_geomdic.indexing._projection import (
     project_derivatives,
     project_patterns,
 )
-from kikuchipy_geomdic.indexing._seeds import neighbour_seeds, poor_points
+from kikuchipy_geomdic.indexing._seeds import neighbour_disagreement, neighbour_seeds, poor_points
 from kikuchipy_geomdic.indexing._variant_comparison import (
     VariantComparison,
     compare_variants,
@@ -81,6 +82,7 @@ __all__ = [
     "detector_matrix",
     "detector_pcs",
     "poor_points",
+    "neighbour_disagreement",
     "neighbour_seeds",
     "VariantComparison",
     "compare_variants",

@@ -17,7 +17,7 @@ from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.indexing import orientation as ori
 from kikuchipy_geomdic.indexing._gauss_newton import _quat_step
-from kikuchipy_geomdic.indexing._lambert import _atan_unit, _direction_cosines, _project
+from kikuchipy_geomdic.indexing._lambert import SUMS, _atan_unit, _direction_cosines, _project
 from kikuchipy_geomdic.indexing.variants import variant_operators
 from kikuchipy_geomdic.patterns.simulation import simulate_patterns
 from kikuchipy_geomdic.validation import synthetic
@@ -104,6 +104,26 @@ def test_rotation_derivative_matches_central_differences(si_mp, det):
         # master-pattern cell edge within +-h
         assert np.corrcoef(fd, jac[:, k])[0, 1] > 0.999
         assert np.median(np.abs(fd - jac[:, k])) < 1e-3 * np.abs(jac[:, k]).mean()
+
+
+def test_gauss_newton_sums_equal_the_stored_pattern_and_jacobian(si_mp, det):
+    """The one-pass sums a Gauss-Newton step uses are those of the
+    projection and Jacobian stored per pixel."""
+    arrays = ori.master_pattern_arrays(si_mp, 20)
+    dc = _direction_cosines(det.pc.reshape(3), det.nrows, det.ncols, ori.detector_matrix(det))
+    q = Rotation.random().data.reshape(4).astype(float)
+    v, j = np.empty(dc.shape[0]), np.empty((dc.shape[0], 3))
+    _project(q, dc, arrays.upper, arrays.lower, arrays.scale, v, j, True)
+    e = np.random.default_rng(0).normal(size=v.size)
+    sums = np.empty(SUMS)
+    _project(
+        q, dc, arrays.upper, arrays.lower, arrays.scale, np.empty(1), np.empty((1, 3)), True,
+        None, e, sums,
+    )  # fmt: skip
+    jj = j.T @ j
+    expected = [v.sum(), v @ v, v @ e, *j.sum(0), *(j.T @ v), *(j.T @ e)]
+    expected += [jj[0, 0], jj[0, 1], jj[0, 2], jj[1, 1], jj[1, 2], jj[2, 2]]
+    np.testing.assert_allclose(sums, expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())
 
 
 def test_refine_recovers_truth_from_starts_degrees_off(polycrystal):
@@ -202,6 +222,29 @@ def test_poor_points_and_neighbour_seeds():
     usable[3, 3] = False
     seeds = ori.neighbour_seeds(q, (2, 2), usable)
     assert len(seeds) == 2  # identity and the 30 deg grain, each once
+
+
+def test_neighbour_disagreement_with_symmetry_and_variants():
+    """Neighbours in other variants or symmetry equivalents of one parent
+    agree; a point 0.5 deg off them does not; invalid points are NaN."""
+    ops = variant_operators()
+    parent = Rotation.from_axes_angles([1, 2, 3], np.deg2rad(40))
+    q = np.tile(parent.data, (4, 4, 1))
+    q[0, :] = (ops[2] * parent).data  # a 90 deg domain
+    q[:, 0] = (Rotation.from_axes_angles([0, 0, 1], np.pi / 2) * parent).data  # 4-fold equivalent
+    q[2, 2] = (Rotation.from_axes_angles([1, 0, 0], np.deg2rad(0.5)) * parent).data
+    valid = np.ones((4, 4), bool)
+    valid[3, 3] = False
+    sym = Rotation.from_axes_angles([0, 0, 1], np.arange(4) * np.pi / 2).data
+    eq = np.concatenate([(Rotation(sym) * op).data for op in ops])
+    d = ori.neighbour_disagreement(q, valid, eq)
+    assert np.isnan(d[3, 3])
+    assert abs(d[2, 2] - 0.5) < 1e-6
+    others = valid.copy()
+    others[2, 2] = False
+    assert d[others].max() < 1e-6
+    # Without the equivalents the domains disagree
+    assert ori.neighbour_disagreement(q, valid)[0, 1] > 10
 
 
 def test_compare_variants_picks_the_shown_variant_under_noise(bto_mp):

@@ -435,6 +435,52 @@ def test_misindexed_points_are_reseeded_or_flagged(si_mp):
     assert (_disorientation(nm, sm.xmap)[wrong] > 1).sum() >= 8
 
 
+def test_point_in_a_local_optimum_next_to_its_neighbours_is_reseeded(si_mp):
+    """A point left 0.6 deg from the truth (as a local optimum at low dose
+    leaves it) scores within the map's spread, so the score rule cannot
+    see it; it disagrees with its neighbours, is refined again from their
+    orientations and gets the truth."""
+    import dask.array as da
+
+    from kikuchipy_geomdic.indexing import _point_refinement as pr
+    from kikuchipy_geomdic.indexing._reseed import _proper_symmetry, _reseed
+    from kikuchipy_geomdic.indexing.orientation import (
+        detector_matrix,
+        detector_pcs,
+        master_pattern_arrays,
+        poor_points,
+        pyramid_levels,
+    )  # fmt: skip
+
+    sm = synthetic.synthetic_map(
+        si_mp, (3, 3), orientations="single", shape=(60, 60), dose=300, seed=1
+    )
+    patterns = sm.signal.data.reshape(9, 60, 60)
+    truth = sm.xmap.rotations.data.reshape(9, 4)
+    q = truth.copy()
+    off = Rotation.from_axes_angles([1, 1, 0], np.deg2rad(0.6))
+    q[4] = (off * Rotation(truth[4])).data  # the centre point, 0.6 deg off
+    opts = dict(
+        arrays=master_pattern_arrays(sm.master_pattern, 20), om=detector_matrix(sm.detector),
+        levels=pyramid_levels((60, 60), None), max_step=np.deg2rad(2), dic_rms=False, ops=None,
+    )  # fmt: skip
+    pcs = detector_pcs(sm.detector, 9)
+    # Every point's row as refined, but the centre's as if it stopped there
+    out = pr._refine_points(patterns, truth, pcs, **opts)
+    from kikuchipy_geomdic.indexing.orientation import project_arrays
+
+    sim = project_arrays(q[4:5], pcs[4:5], opts["om"], opts["arrays"], (60, 60))
+    out[4, pr._Q] = q[4]
+    out[4, pr._SCORE] = np.corrcoef(sim.ravel(), patterns[4].ravel())[0, 1]
+    assert not poor_points(out[:, pr._SCORE].reshape(3, 3))[1, 1]  # invisible to the score
+    d = da.from_array(patterns.reshape(3, 3, 60, 60), chunks=(3, 3, 60, 60))
+    todo = np.ones(9, bool)
+    reseeded = _reseed(d, out, todo, pcs, (3, 3), opts, q, _proper_symmetry(sm.master_pattern))
+    assert reseeded[4] and reseeded.sum() == 1
+    err = np.rad2deg((Rotation(out[4, pr._Q]) * ~Rotation(truth[4])).angle)
+    assert err < 0.05, err
+
+
 def _disorientation(xmap: CrystalMap, truth: CrystalMap) -> np.ndarray:
     """Misorientation angles (deg) with the crystal's symmetry: a start
     refined to a symmetrically equivalent orientation is right."""
