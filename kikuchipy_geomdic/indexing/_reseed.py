@@ -84,8 +84,11 @@ def _relabel(q, start, ops, sym) -> np.ndarray:
 
 
 #: Most passes of reseeding: a point fixed in one pass seeds its poor
-#: neighbours in the next (runs of misindexed points).
-RESEED_PASSES = 4
+#: neighbours in the next (runs of misindexed points); passes stop as soon
+#: as one changes nothing. At 4, a region of 25 points whose first pass
+#: failed stayed wrong (users map of dose 30, seed 1, azimuthal 2 deg
+#: off: 84 % of the 90 deg domain right; at 16, all but one)
+RESEED_PASSES = 16
 
 
 def _reseed(d, out, todo, pcs, nav, options, start, sym) -> np.ndarray:

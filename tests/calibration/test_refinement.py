@@ -173,6 +173,34 @@ def test_small_map_does_not_walk_weak_angles(si_mp):
     assert _max_pc_error(res, sm) <= 3 * max(res.standard_errors[n] for n in ("pcx", "pcy", "pcz"))
 
 
+def test_an_angle_that_walked_insignificantly_is_put_back():
+    """The DIC stage judges a poorly determined angle by its whole move
+    too: one that ended within three standard errors of its start (as the
+    azimuthal angle of a BaTiO3 domain map from users' starts walked 17
+    deg on a standard error of 6.2, measured) is not determined, and the
+    refinement runs again with it fixed; a parameter fixed stays fixed."""
+    from types import SimpleNamespace
+
+    from kikuchipy.detectors import EBSDDetector
+
+    from kikuchipy_geomdic.calibration._dic_stage import _choose_free, _JointCarry, _walked
+    from kikuchipy_geomdic.geometry import MapGeometry
+
+    names = ("pcx", "pcy", "pcz", "azimuthal")
+    det = EBSDDetector((60, 60), pc=[0.5, 0.3, 0.6], azimuthal=-0.45)
+    start = MapGeometry.from_detector(det, (1.0, 1.0), (3, 3))
+    moved = start.updated({"azimuthal": 17.5, "pcz": 0.01})
+    problem = SimpleNamespace(parameters=names)
+    se = {"pcx": 2e-3, "pcy": 2e-3, "pcz": 2e-3, "azimuthal": 6.2}
+    carry = _JointCarry(SimpleNamespace(geometry=moved), 0.0, standard_errors=se)
+    assert _walked(problem, start, carry) == ("azimuthal",)  # the PC may move
+    assert _walked(problem, start, replace(carry, standard_errors={**se, "azimuthal": 5})) == ()
+    assert _walked(problem, start, replace(carry, fixed=("azimuthal",))) == ()
+    update = SimpleNamespace(standard_errors=np.array([1e-4, 1e-4, 1e-4, 0.01]), delta=np.ones(4))
+    _, weak, free, _ = _choose_free(names, update, replace(carry, fixed=("azimuthal",)))
+    assert weak == ("azimuthal",) and "azimuthal" not in free
+
+
 def test_uncentred_random_start_ten_patterns(si_mp):
     # Ten random orientations, 1 deg random start errors (not centred),
     # 120 px patterns with shot noise of 1000 counts
