@@ -56,7 +56,10 @@ solver: every variant of every point refined, the kept one chosen by
     ``--kikuchipy``: also kikuchipy's ``refine_orientation`` with the
     operators at the true detector, for the speed ratio beside the accuracy.
     ``--oracle``: also reindexed from the true orientations at the true
-    detector, the limit the patterns themselves set.
+    detector, the limit the patterns themselves set. ``--calibrate``: also
+    calibrated by ``refine_geometry_dic(..., pseudo_symmetry_ops=)`` from
+    the start at the start detector (PC errors in standard errors, angles
+    kept at the start), then reindexed at the calibrated detector.
 
 Usage::
 
@@ -356,18 +359,35 @@ def users(args) -> None:
                 flush=True,
             )
             cases = [
-                (name, p, a, "geomdic", sm.start_xmap)
+                (name, _detector_off(sm.detector, p, a), "geomdic", sm.start_xmap)
                 for name, p, a in DETECTOR_ERRORS
                 if args.detectors is None or name in args.detectors
             ]
             if args.oracle:
-                cases.append(("true, from truth", None, 0.0, "geomdic", sm.xmap))
+                cases.append(("true, from truth", sm.detector, "geomdic", sm.xmap))
             if args.kikuchipy:
-                cases.append(("true (kikuchipy)", None, 0.0, "kikuchipy", sm.start_xmap))
-            for name, param, angle, method, start in cases:
-                det = sm.detector
-                if param is not None:
-                    det = copy_detector(det, **{param: getattr(det, param) + angle})
+                cases.append(("true (kikuchipy)", sm.detector, "kikuchipy", sm.start_xmap))
+            if args.calibrate:
+                t1 = time.perf_counter()
+                with _quiet():
+                    res = refine_geometry_dic(
+                        sm.signal, sm.start_xmap, sm.start_detector, sm.master_pattern,
+                        sm.energy, pseudo_symmetry_ops=ops, show_progressbar=False,
+                    )  # fmt: skip
+                kept = [
+                    n
+                    for n in ("tilt", "azimuthal")
+                    if res.parameters[n] == getattr(sm.start_detector, n)
+                ]
+                print(
+                    f"  calibrated in {time.perf_counter() - t1:.0f} s: PC error "
+                    f"{np.array2string(pc_errors_in_sigma(res, sm), precision=1)} sigma, "
+                    f"largest {max_pc_error(res.detector, sm):.1e}; kept at the start: "
+                    f"{', '.join(kept) or 'none'}",
+                    flush=True,
+                )
+                cases.append(("calibrated", res.detector, "geomdic", sm.start_xmap))
+            for name, det, method, start in cases:
                 t1 = time.perf_counter()
                 with _quiet():
                     out = reindex(
@@ -397,6 +417,13 @@ def users(args) -> None:
         "'from truth': reindexed from the true orientations (the pattern's own limit); "
         "kikuchipy: converged not defined, counted as 1)"
     )
+
+
+def _detector_off(detector, parameter, angle):
+    """*detector* with *parameter* off by *angle* degrees (itself if None)."""
+    if parameter is None:
+        return detector
+    return copy_detector(detector, **{parameter: getattr(detector, parameter) + angle})
 
 
 def _users_scores(out, sm, method) -> tuple:
@@ -439,6 +466,10 @@ def main(argv=None) -> None:
     p.add_argument(
         "--oracle", action="store_true", help="users: reindexed from the true orientations too"
     )
+    p.add_argument(
+        "--calibrate", action="store_true",
+        help="users: calibrated with the operators from the start, then reindexed there",
+    )  # fmt: skip
     p.add_argument(
         "--detectors", nargs="+", help="users: names of DETECTOR_ERRORS to run (default all)"
     )

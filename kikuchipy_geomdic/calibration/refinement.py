@@ -262,9 +262,12 @@ def refine_geometry_dic(
     exceeds :data:`~kikuchipy_geomdic.calibration.uncertainty.DETERMINACY_LIMITS`
     is moved by the joint solver only by a step of
     :data:`~kikuchipy_geomdic.calibration.uncertainty.SIGNIFICANCE` standard
-    errors or more, so that noise cannot walk it around; the result lists it in
-    :attr:`~GeometryRefinementResult.undetermined`, with its standard
-    error.
+    errors or more, so that noise cannot walk it around, and if its whole
+    move still ends under that many standard errors, the DIC stage runs
+    again with it fixed at its start (a single crystal with domains let the
+    azimuthal angle walk 17 deg on a standard error of 6 deg); the result
+    lists it in :attr:`~GeometryRefinementResult.undetermined`, with its
+    standard error.
 
     Examples
     --------

@@ -20,6 +20,7 @@ from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.indexing._point_refinement import (
     _EVALS,
+    _NCC,
     _Q,
     _SCORE,
     _VARIANT,
@@ -118,13 +119,7 @@ def _reseed(d, out, todo, pcs, nav, options, start, sym) -> np.ndarray:
     tried: dict[int, list[np.ndarray]] = {}
     for _ in range(RESEED_PASSES):
         q_map = out[:, _Q].reshape(rows, cols, 4)
-        poor = poor_points(out[:, _SCORE].reshape(nav), valid)
-        # A point that disagrees with its neighbours but scores as well as
-        # they do is tried from the neighbours that agree with theirs
-        with np.errstate(invalid="ignore"):
-            angle = neighbour_disagreement(q_map, valid, equivalents)
-            agree = angle <= DISAGREEMENT
-            disagree = valid & ~poor & (angle > DISAGREEMENT) & (angle <= DISAGREEMENT_MAX)
+        poor, disagree, agree = _to_try(q_map, out[:, _SCORE].reshape(nav), valid, ops, sym)
         if not (poor | disagree).any():
             break
         points, seeds = [], []
@@ -153,17 +148,56 @@ def _reseed(d, out, todo, pcs, nav, options, start, sym) -> np.ndarray:
         changed = False
         for i, f in enumerate(flat):
             mine = trial[idx == i]
-            best = mine[np.nanargmax(mine[:, _SCORE])]
+            b = int(np.nanargmax(mine[:, _SCORE]))
+            best = mine[b]
             spent = out[f, _EVALS] + mine[:, _EVALS].sum()
             if best[_SCORE] > out[f, _SCORE]:
                 out[f] = best
                 if ops is not None:
                     out[f, _VARIANT] = _relabel(best[None, _Q], start[None, f], ops, sym)[0]
+                    out[f, _NCC:] = _scores_from_start(
+                        best[_NCC:], seeds[i][b], start[f], ops, sym
+                    )
                 reseeded[f] = changed = True
             out[f, _EVALS] = spent
         if not changed:
             break
     return reseeded
+
+
+def _scores_from_start(ncc, seed, start, ops, sym) -> np.ndarray:
+    """The NCCs (K,) of a trial's candidates, ``op_j * seed``, reordered
+    as the variants of the point's own *start* (the order the output's
+    columns count in); a variant no candidate maps to gets NaN."""
+    ident = np.array([[1.0, 0.0, 0.0, 0.0]])
+    candidates = _qmul(np.concatenate([ident, ops]), seed[None, :])
+    label = _relabel(candidates, np.repeat(start[None, :], len(candidates), axis=0), ops, sym)
+    out = np.full(len(ncc), np.nan)
+    out[label] = ncc
+    return out
+
+
+def _to_try(q_map, scores, valid, ops, sym):
+    """Boolean maps of the points to refine again: those scoring poorly
+    for where they are; those that disagree with neighbours that agree
+    with theirs (tried only from those); and the neighbours that agree.
+
+    A point disagrees when it is :data:`DISAGREEMENT` to
+    :data:`DISAGREEMENT_MAX` from its neighbours (candidate sets:
+    symmetry and variants allowed), a local optimum next to theirs that
+    its score need not show; or, with operators, when it is in their
+    parent but most of them are in another variant (its own variants
+    were refined from its start, not from theirs; measured: a base point
+    called 90 deg among base neighbours, right from the true orientations)."""
+    poor = poor_points(scores, valid)
+    with np.errstate(invalid="ignore"):
+        angle = neighbour_disagreement(q_map, valid, _equivalents(ops, sym))
+        agree = angle <= DISAGREEMENT
+        disagree = valid & ~poor & (angle > DISAGREEMENT) & (angle <= DISAGREEMENT_MAX)
+        if ops is not None:
+            lone = neighbour_disagreement(q_map, valid, sym) > DISAGREEMENT_MAX
+            disagree |= valid & ~poor & agree & lone
+    return poor, disagree, agree
 
 
 def _trials(patterns, seeds, pcs, options, floor) -> np.ndarray:

@@ -481,6 +481,34 @@ def test_point_in_a_local_optimum_next_to_its_neighbours_is_reseeded(si_mp):
     assert err < 0.05, err
 
 
+def test_points_tried_again_from_their_neighbours():
+    """Which points reseeding tries: a point 0.5 deg from neighbours that
+    agree; with operators, a point in its neighbours' parent but another
+    variant than most of them; never one on a domain boundary, nor (without
+    operators) a point of a fine-grained map whose neighbours all differ."""
+    from kikuchipy_geomdic.indexing._reseed import _to_try
+
+    ops = variant_operators()
+    parent = Rotation.from_axes_angles([1, 2, 3], np.deg2rad(40))
+    sym = Rotation.from_axes_angles([0, 0, 1], np.arange(4) * np.pi / 2).data
+    q = np.tile(parent.data, (5, 7, 1))
+    q[:, 5:] = (ops[2] * parent).data  # a 90 deg domain: boundary between columns 4 and 5
+    q[1, 1] = (ops[2] * parent).data  # alone in its variant
+    q[3, 2] = (Rotation.from_axes_angles([1, 0, 0], np.deg2rad(0.5)) * parent).data
+    valid = np.ones((5, 7), bool)
+    scores = np.full((5, 7), 0.5)
+    poor, disagree, _ = _to_try(q, scores, valid, ops[1:].data, sym)
+    assert not poor.any()
+    assert np.argwhere(disagree).tolist() == [[1, 1], [3, 2]]
+    # Without operators the variants are other grains: only the 0.5 deg point
+    _, disagree, _ = _to_try(q, scores, valid, None, sym)
+    assert np.argwhere(disagree).tolist() == [[3, 2]]
+    rng = np.random.default_rng(0)
+    grains = Rotation.from_axes_angles(rng.normal(size=(35, 3)), rng.uniform(0, 1, 35)).data
+    _, disagree, _ = _to_try(grains.reshape(5, 7, 4), scores, valid, None, sym)
+    assert not disagree.any()
+
+
 def _disorientation(xmap: CrystalMap, truth: CrystalMap) -> np.ndarray:
     """Misorientation angles (deg) with the crystal's symmetry: a start
     refined to a symmetrically equivalent orientation is right."""
