@@ -29,12 +29,16 @@ _SIG, _NCC = 11, 12
 
 
 #: Full-resolution evaluations (accelerated steps) of each variant started
-#: at the refined best's variant. Measured on the users maps: 12 kept the
-#: accuracy; 8 lost 3 base and 2 90 deg points (dose 150, seed 0); a
-#: screen of 3 evaluations, the variants then below 85 % of the best's NCC
-#: not refined further, lost 8 of 63 90 deg points (dose 30, seed 1: the
-#: right 90 deg variant of a point whose best was the wrong axis dropped)
-VARIANT_EVALUATIONS = 12
+#: at the refined best's variant. Measured on the users maps (doses 30 and
+#: 150, seeds 0-2, detectors true and 1-2 deg off): 8 keeps every call of
+#: 12 (and the c axis of every point), at 137 instead of 156 projections
+#: per point, since reseeding now tries a point alone in its variant among
+#: its neighbours again (before that, 8 lost 3 base and 2 90 deg points at
+#: dose 150). A screen of 3 evaluations, the variants then below 85 % of
+#: the best's NCC not refined further, lost 8 of 63 90 deg points (dose
+#: 30, seed 1: the right 90 deg variant of a point whose best was the
+#: wrong axis dropped)
+VARIANT_EVALUATIONS = 8
 
 #: A reseeding trial whose refined best scores below this fraction of the
 #: point's own score does not refine its other variants (a seed's result
