@@ -1,9 +1,10 @@
 """The reseeding stage of
 :func:`~kikuchipy_geomdic.indexing.reindex.refine_map`: the points of a
 map that score poorly for where they are
-(:func:`~kikuchipy_geomdic.indexing.orientation.poor_points`) or sit a
+(:func:`~kikuchipy_geomdic.indexing.orientation.poor_points`), that sit a
 fraction of a degree from neighbours that agree with one another
-(:func:`~kikuchipy_geomdic.indexing.orientation.neighbour_disagreement`)
+(:func:`~kikuchipy_geomdic.indexing.orientation.neighbour_disagreement`),
+or that are alone in their variant among neighbours of their parent,
 refined again from their neighbours' distinct orientations, a result kept
 only where it scores better.
 
@@ -60,7 +61,9 @@ def _distinct(
 ) -> np.ndarray:
     """The seeds (k, 4) whose candidate sets differ: a seed that is an
     equivalent (symmetry times variant) of an earlier one within
-    *min_angle* degrees adds nothing, as its variants are refined anyway."""
+    *min_angle* degrees adds nothing, as its variants are refined anyway
+    (the disagreement a point is tried for: at 1 deg, a good seed next to
+    one tried earlier was never tried)."""
     cos_half = np.cos(np.deg2rad(min_angle) / 2)
     kept: list[np.ndarray] = []
     for q in seeds:
