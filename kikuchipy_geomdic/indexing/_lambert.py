@@ -117,6 +117,7 @@ def _project(q, dc, upper, lower, scale, value, jac, with_jac, gradient=None, e=
     m = _rotation_matrix(q)
     npx = upper.shape[0]
     fac = scale / _SQRT_PI_HALF
+    # The sums as scalars, not an array, so that they stay in registers
     sv = svv = sve = 0.0
     s0 = s1 = s2 = 0.0
     sv0 = sv1 = sv2 = 0.0
