@@ -43,7 +43,7 @@ from orix.crystal_map import CrystalMap
 from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.calibration._checks import _check_inputs, _step_sizes
-from kikuchipy_geomdic.calibration._dic_stage import _dic_stage
+from kikuchipy_geomdic.calibration._dic_stage import _check_matched, _dic_stage
 from kikuchipy_geomdic.calibration._full_field import FULL_FIELD_BASIN, _full_field_stage
 from kikuchipy_geomdic.calibration._points import calibration_points
 from kikuchipy_geomdic.calibration._problem import _binning, _prepare_problem
@@ -330,6 +330,7 @@ def refine_geometry_dic(
         outcome, standard_errors, adequacy = _full_field_stage(
             problem, outcome, dic_stage, orientation_prior, full_field, guarded, binning, progress
         )
+    outcome = _check_matched(outcome)
     rotations, scores = _final_orientations(problem, outcome.state, solver, refine_kwargs)
     return _build_result(
         problem,
