@@ -68,24 +68,26 @@ from kikuchipy_geomdic.patterns import displacement as dsp
 #: the joint loop: the measurement's noise floor is reached.
 MIN_FALL = 0.1
 
-#: An RMS displacement (fraction of the width) the DIC stage ends above
-#: means its features were not matched, and the geometry it reports is
-#: not determined by them. Measured at the end: realistic Ni maps
-#: 0.36-0.62 %; BaTiO3 domain maps from users' starts 1.5 % at 150
-#: counts/px (PC 3.4e-3 off, covered), 4.4-4.9 % at 30 (PC 6.5e-3 to
-#: 1.9e-2 off, once at 4.4 standard errors)
-UNMATCHED_RMS = 0.03
+#: An RMS displacement (px) the DIC stage ends above means its features
+#: were not matched, and the geometry it reports is not determined by
+#: them. Measured at the end (unweighted RMS): BaTiO3 domain maps of 120
+#: px from users' starts 2.6 px at 150 counts/px (PC 3.4e-3 off, covered),
+#: 5.3-6.1 px at 30 (PC 6.5e-3 to 1.9e-2 off, once at 4.4 standard
+#: errors); Si at 0.3 counts/px 5.6 px; kikuchipy's real Ni patterns of
+#: 60 px 1.8 px; realistic Ni maps of 96 px under 0.6 px
+UNMATCHED_RMS_PX = 4.0
 
 
 def _check_matched(outcome: _LoopOutcome) -> _LoopOutcome:
     """*outcome*, not converged and with a warning, if its last field's RMS
-    displacement is above :data:`UNMATCHED_RMS`."""
-    rms = _rms_displacement(outcome.state.field)
-    if not rms > UNMATCHED_RMS:
+    displacement is above :data:`UNMATCHED_RMS_PX`."""
+    field = outcome.state.field
+    rms = _rms_displacement(field) * field.shape[1]
+    if not rms > UNMATCHED_RMS_PX:
         return outcome
     warnings.warn(
-        f"The DIC stage ended with an RMS displacement of {100 * rms:.1f} % of the pattern "
-        f"width (above {100 * UNMATCHED_RMS:g} %): the simulated and the recorded features "
+        f"The DIC stage ended with an RMS displacement of {rms:.1f} px (above "
+        f"{UNMATCHED_RMS_PX:g} px): the simulated and the recorded features "
         "did not match (patterns too noisy for DIC, or orientations or variants far off), so "
         "the geometry is not determined by them; the result is marked not converged",
         UserWarning,

@@ -303,8 +303,8 @@ def test_full_field_skipped_when_dic_leaves_the_pc_undetermined(si_mp):
     with pytest.warns(UserWarning, match="full-field stage was skipped"):
         res = _refine(sm, points=16, parameters=["pcx", "pcy", "pcz"])
     assert "full-field" not in [h.get("stage") for h in res.history]
-    # Its features did not match (an RMS displacement of 4.7 % of the
-    # width, measured): the result says it is not converged
+    # Its features did not match (an RMS displacement of 5.6 px,
+    # measured): the result says it is not converged
     assert not res.converged
     alone = _refine(sm, points=16, parameters=["pcx", "pcy", "pcz"], full_field=False)
     assert res.parameters == alone.parameters
