@@ -60,7 +60,12 @@ from kikuchipy_geomdic.calibration._paper import _paper_loop
 from kikuchipy_geomdic.calibration._problem import _LoopOutcome, _Problem, _State, _step_record
 from kikuchipy_geomdic.calibration._progress import _Progress
 from kikuchipy_geomdic.calibration.solve import JointUpdate
-from kikuchipy_geomdic.calibration.uncertainty import _PC, DETERMINACY_LIMITS, SIGNIFICANCE
+from kikuchipy_geomdic.calibration.uncertainty import (
+    _PC,
+    DETERMINACY_LIMITS,
+    SIGNIFICANCE,
+    _insignificant_moves,
+)
 from kikuchipy_geomdic.geometry import MapGeometry, rotations_from_vectors, solved_parameters
 from kikuchipy_geomdic.patterns import displacement as dsp
 
@@ -393,13 +398,9 @@ def _walked(problem: _Problem, geometry0: MapGeometry, carry: _JointCarry) -> tu
     moved = _solved_values(carry.state.geometry, solved, split) - _solved_values(
         geometry0, solved, split
     )
+    walked = _insignificant_moves(solved, [se[n] for n in solved], moved)
     return tuple(
-        n
-        for n, d in zip(solved, moved)
-        if n not in _PC
-        and n not in carry.fixed
-        and se[n] > DETERMINACY_LIMITS[n]
-        and 0 < abs(d) < SIGNIFICANCE * se[n]
+        n for n, d in zip(solved, moved) if n in walked and d != 0 and n not in carry.fixed
     )
 
 

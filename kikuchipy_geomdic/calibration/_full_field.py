@@ -28,10 +28,10 @@ from kikuchipy_geomdic.calibration.solve import JointSystem, solve_joint
 from kikuchipy_geomdic.calibration.uncertainty import (
     _PC,
     DETERMINACY_LIMITS,
-    SIGNIFICANCE,
     _adequacy,
     _dic_update,
     _inflated,
+    _insignificant_moves,
     _named_errors,
 )
 from kikuchipy_geomdic.geometry import MapGeometry, rotations_from_vectors, solved_parameters
@@ -175,11 +175,7 @@ def _full_field(problem, state, prior, first_it, report) -> _FullField:
     )
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
     moved = _solved_values(geometry, solved, split) - _solved_values(start, solved, split)
-    held = tuple(
-        nm
-        for nm, sg, d in zip(solved, se, moved)
-        if nm not in _PC and sg > DETERMINACY_LIMITS[nm] and abs(d) < SIGNIFICANCE * sg
-    )
+    held = _insignificant_moves(solved, se, moved)
     if held and system is not None:
         geometry, rotations, cov = _hold(system, held, start, solved, split, prior, cov)
     se = _named_errors(names, np.sqrt(np.clip(np.diag(cov), 0, None)))

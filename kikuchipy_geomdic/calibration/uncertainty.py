@@ -57,6 +57,18 @@ TILT_DIFFERENCE = "tilt-sample_tilt"
 ADEQUACY_LIMIT = 3.0
 
 
+def _insignificant_moves(solved: Sequence[str], se, moved) -> tuple[str, ...]:
+    """The angles among *solved* (standard errors *se*, moves *moved* from
+    their start, both in *solved*'s order) that the map determines poorly
+    (above :data:`DETERMINACY_LIMITS`) and that moved by less than
+    :data:`SIGNIFICANCE` standard errors: the data did not move them."""
+    return tuple(
+        n
+        for n, sg, d in zip(solved, se, moved)
+        if n not in _PC and sg > DETERMINACY_LIMITS[n] and abs(d) < SIGNIFICANCE * sg
+    )
+
+
 def _named_errors(names: Sequence[str], solved_errors) -> dict[str, float]:
     """Standard errors of the parameters *names* and of the determined tilt
     difference, from *solved_errors*, those of the solved parameters

@@ -122,7 +122,9 @@ def _reseed(d, out, todo, pcs, nav, options, start, sym) -> np.ndarray:
     tried: dict[int, list[np.ndarray]] = {}
     for _ in range(RESEED_PASSES):
         q_map = out[:, _Q].reshape(rows, cols, 4)
-        poor, disagree, agree = _to_try(q_map, out[:, _SCORE].reshape(nav), valid, ops, sym)
+        poor, disagree, agree = _to_try(
+            q_map, out[:, _SCORE].reshape(nav), valid, equivalents, sym, ops is not None
+        )
         if not (poor | disagree).any():
             break
         points, seeds = [], []
@@ -180,7 +182,7 @@ def _scores_from_start(ncc, seed, start, ops, sym) -> np.ndarray:
     return out
 
 
-def _to_try(q_map, scores, valid, ops, sym):
+def _to_try(q_map, scores, valid, equivalents, sym, variants):
     """Boolean maps of the points to refine again: those scoring poorly
     for where they are; those that disagree with neighbours that agree
     with theirs (tried only from those); and the neighbours that agree.
@@ -188,16 +190,17 @@ def _to_try(q_map, scores, valid, ops, sym):
     A point disagrees when it is :data:`DISAGREEMENT` to
     :data:`DISAGREEMENT_MAX` from its neighbours (candidate sets:
     symmetry and variants allowed), a local optimum next to theirs that
-    its score need not show; or, with operators, when it is in their
+    its score need not show (*equivalents*: :func:`_equivalents`); or,
+    with *variants* (operators), when it is in their
     parent but most of them are in another variant (its own variants
     were refined from its start, not from theirs; measured: a base point
     called 90 deg among base neighbours, right from the true orientations)."""
     poor = poor_points(scores, valid)
     with np.errstate(invalid="ignore"):
-        angle = neighbour_disagreement(q_map, valid, _equivalents(ops, sym))
+        angle = neighbour_disagreement(q_map, valid, equivalents)
         agree = angle <= DISAGREEMENT
         disagree = valid & ~poor & (angle > DISAGREEMENT) & (angle <= DISAGREEMENT_MAX)
-        if ops is not None:
+        if variants:
             lone = neighbour_disagreement(q_map, valid, sym) > DISAGREEMENT_MAX
             disagree |= valid & ~poor & agree & lone
     return poor, disagree, agree

@@ -486,7 +486,7 @@ def test_points_tried_again_from_their_neighbours():
     agree; with operators, a point in its neighbours' parent but another
     variant than most of them; never one on a domain boundary, nor (without
     operators) a point of a fine-grained map whose neighbours all differ."""
-    from kikuchipy_geomdic.indexing._reseed import _to_try
+    from kikuchipy_geomdic.indexing._reseed import _equivalents, _to_try
 
     ops = variant_operators()
     parent = Rotation.from_axes_angles([1, 2, 3], np.deg2rad(40))
@@ -497,15 +497,16 @@ def test_points_tried_again_from_their_neighbours():
     q[3, 2] = (Rotation.from_axes_angles([1, 0, 0], np.deg2rad(0.5)) * parent).data
     valid = np.ones((5, 7), bool)
     scores = np.full((5, 7), 0.5)
-    poor, disagree, _ = _to_try(q, scores, valid, ops[1:].data, sym)
+    eq = _equivalents(ops[1:].data, sym)
+    poor, disagree, _ = _to_try(q, scores, valid, eq, sym, True)
     assert not poor.any()
     assert np.argwhere(disagree).tolist() == [[1, 1], [3, 2]]
     # Without operators the variants are other grains: only the 0.5 deg point
-    _, disagree, _ = _to_try(q, scores, valid, None, sym)
+    _, disagree, _ = _to_try(q, scores, valid, sym, sym, False)
     assert np.argwhere(disagree).tolist() == [[3, 2]]
     rng = np.random.default_rng(0)
     grains = Rotation.from_axes_angles(rng.normal(size=(35, 3)), rng.uniform(0, 1, 35)).data
-    _, disagree, _ = _to_try(grains.reshape(5, 7, 4), scores, valid, None, sym)
+    _, disagree, _ = _to_try(grains.reshape(5, 7, 4), scores, valid, sym, sym, False)
     assert not disagree.any()
 
 
