@@ -183,25 +183,26 @@ def _full_field(problem, state, prior, first_it, report) -> _FullField:
 
 
 @nb.njit(cache=True, nogil=True)
-def _project_out(a, unit):
-    """*a* (N, P, K) with each pattern's constant and *unit* (N, P)
-    direction removed from every column, in two passes over the pixels
-    (numpy's broadcasting made five and was the full field's largest
-    cost)."""
-    n, p, k = a.shape
-    out = np.empty_like(a)
+def _project_out(a, unit, scale):
+    """*a* (N, K, P), pattern planes, times each pattern's *scale* (N,),
+    with each pattern's constant and *unit* (N, P) direction removed from
+    every column, returned as (N, P, K) float64 in two passes over the
+    pixels (numpy's broadcasting made five and was the full field's
+    largest cost; the transposition is free in the second)."""
+    n, k, p = a.shape
+    out = np.empty((n, p, k))
     for i in range(n):
-        mean = np.zeros(k)
-        along = np.zeros(k)
-        for j in range(p):
-            for c in range(k):
-                mean[c] += a[i, j, c]
-                along[c] += unit[i, j] * a[i, j, c]
-        mean /= p
-        # unit sums to zero, so the dot product needs no centring
-        for j in range(p):
-            for c in range(k):
-                out[i, j, c] = a[i, j, c] - mean[c] - unit[i, j] * along[c]
+        for c in range(k):
+            mean = 0.0
+            along = 0.0
+            for j in range(p):
+                v = a[i, c, j]
+                mean += v
+                along += unit[i, j] * v
+            mean /= p
+            # unit sums to zero, so the dot product needs no centring
+            for j in range(p):
+                out[i, j, c] = scale[i] * (a[i, c, j] - mean - unit[i, j] * along)
     return out
 
 
@@ -217,8 +218,7 @@ def _intensity_system(problem, arrays, geometry, rotations, solved, processing, 
             geometry, problem.points, rotations, arrays, solved, INTENSITY_STEPS
         )
         k = jg.shape[2]
-        s0, cols = processing(s0, np.concatenate([jg, jr], axis=2))
-        jg, jr = cols[..., :k], cols[..., k:]
+        s0, planes = processing(s0, (jg, jr))
     else:
         s0 = processing(problem.simulate(geometry, rotations).reshape(n, -1))[0]
     # Gain and offset of each pattern, then projected out of every column:
@@ -230,17 +230,12 @@ def _intensity_system(problem, arrays, geometry, rotations, solved, processing, 
     unit = sc / norm[:, None]
     ec = e - e.mean(axis=1, keepdims=True)
     gain = (unit * ec).sum(axis=1) / norm
-
-    def reduce(a):
-        flat = np.ascontiguousarray(a.reshape(n, a.shape[1], -1))
-        return _project_out(flat, unit).reshape(a.shape)
-
-    residual = -reduce(e[..., None])[..., 0]  # model minus data, fitted gain and offset
+    # Model minus data, fitted gain and offset
+    residual = _project_out(e[:, None], unit, -np.ones(n))[..., 0]
+    jg = jr = None
     if jacobians:
-        jg = reduce(gain[:, None, None] * jg)
-        jr = reduce(gain[:, None, None] * jr)
-    else:
-        jg = jr = None
+        jg = _project_out(planes[:, :k], unit, gain)
+        jr = _project_out(planes[:, k:], unit, gain)
     return residual, jg, jr, _pixel_variances(residual, e + residual)
 
 

@@ -1,0 +1,85 @@
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from kikuchipy_geomdic.calibration import _processing
+from kikuchipy_geomdic.calibration._full_field import _project_out
+from kikuchipy_geomdic.calibration._processing import _Processing
+
+SHAPE = (24, 30)
+N = 40
+
+
+@pytest.fixture(scope="module")
+def patterns():
+    rng = np.random.default_rng(0)
+    s0 = ndimage.gaussian_filter(rng.normal(size=(N,) + SHAPE), (0, 1.5, 1.5)).reshape(N, -1)
+    columns = ndimage.gaussian_filter(rng.normal(size=(N,) + SHAPE + (4,)), (0, 2, 2, 0))
+    y, x = (np.indices(SHAPE) + 0.5) / SHAPE[1]
+    lobe = np.exp(-((x - 0.5) ** 2 + (y - 0.3) ** 2) / 0.2)
+    return s0, columns.reshape(N, -1, 4), lobe / lobe.mean()
+
+
+@pytest.mark.parametrize(
+    "psf, highpass, contrast, ghost",
+    [
+        (0, 0, 0, False),
+        (0.7, 4.0, 0, True),
+        (0.7, 4.0, 0.2, False),
+        (0.7, 4.0, 0.2, True),
+        (1.2, 0, 0.1, False),
+    ],
+)
+def test_columns_are_the_derivatives_of_the_processed_patterns(
+    patterns, psf, highpass, contrast, ghost
+):
+    # Every step of the processing is differentiated by hand: a column
+    # must be the central difference of the processed pattern along it.
+    # The ghost, the map's mean pattern, is held: a pattern moves it by
+    # 1 / N of its own change
+    s0, columns, lobe = patterns
+    proc = _Processing(SHAPE, psf, highpass, contrast, ghost, lobe=lobe)
+    x, d = proc(s0, (columns[..., :3], columns[..., 3:]))
+    assert x.shape == s0.shape and x.dtype == np.float64
+    assert d.shape == (N, 4, s0.shape[1]) and d.dtype == np.float32
+    h, tol = 1e-4, 2 / N if ghost else 2e-4
+    for k in range(4):
+        fd = np.stack(
+            [
+                (proc(s0 + h * c)[0][i] - proc(s0 - h * c)[0][i]) / (2 * h)
+                for i in (0, 1)
+                for c in [np.where(np.arange(N)[:, None] == i, columns[..., k], 0)]
+            ]
+        )
+        assert np.abs(d[:2, k] - fd).max() < tol * np.abs(fd).max(), k
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_blur_is_scipys_gaussian_filter(patterns, dtype, monkeypatch):
+    planes = patterns[1][:3].reshape((3,) + SHAPE + (4,)).transpose(0, 3, 1, 2).astype(dtype)
+    proc = _Processing(SHAPE, psf=0.9)
+    expected = ndimage.gaussian_filter(planes, (0, 0, 0.9, 0.9), mode="nearest")
+    tol = 1e-6 if dtype == np.float32 else 1e-12
+    assert np.abs(proc._blur(planes) - expected).max() < tol
+    # Without OpenCV, scipy's
+    monkeypatch.setattr(_processing, "_import_cv2", lambda: None)
+    assert np.abs(proc._blur(planes) - expected).max() < tol
+
+
+def test_project_out_removes_gain_and_offset():
+    rng = np.random.default_rng(1)
+    n, k, p = 3, 2, 50
+    unit = rng.normal(size=(n, p))
+    unit -= unit.mean(axis=1, keepdims=True)
+    unit /= np.linalg.norm(unit, axis=1, keepdims=True)
+    a = rng.normal(size=(n, k, p)).astype(np.float32)
+    scale = np.array([1.0, -2.0, 0.5])
+    out = _project_out(a, unit, scale)
+    assert out.shape == (n, p, k)
+    expected = np.empty((n, p, k))
+    for i in range(n):
+        basis = np.stack([np.ones(p), unit[i]], axis=1)
+        cols = a[i].T.astype(np.float64)
+        coef, *_ = np.linalg.lstsq(basis, cols, rcond=None)
+        expected[i] = scale[i] * (cols - basis @ coef)
+    assert np.allclose(out, expected, atol=1e-5)
