@@ -19,6 +19,8 @@ Layer 3 (patterns): may import geometry, io, patterns.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 __all__ = [
@@ -162,11 +164,14 @@ def _roi_rowcol(index: np.ndarray, rois: tuple[int, int]):
     return index // rois[1], index % rois[1]
 
 
+@functools.lru_cache(maxsize=32)
 def _tracking_labels(shape, rois, binning, tracked_shape, margin):
     """ROI of each tracking pixel, -1 within *margin* of the edge.
 
     A tracking pixel belongs to the ROI of its full-resolution centre.
-    Returns the label image and the pixel box of each ROI.
+    Returns the label image (read-only) and the pixel box of each ROI, a
+    tuple. Cached: every pattern of a map has the same (built per pattern,
+    they were a tenth of the DIC measurement's cost).
     """
     row_edges, col_edges = roi_edges(shape, rois)
     lab = []
@@ -189,7 +194,8 @@ def _tracking_labels(shape, rois, binning, tracked_shape, margin):
                 boxes.append((rr[0], rr[-1] + 1, cc[0], cc[-1] + 1))
             else:
                 boxes.append(None)
-    return labels, boxes
+    labels.flags.writeable = False
+    return labels, tuple(boxes)
 
 
 # --------------------------------------------------------------------- #
