@@ -41,6 +41,11 @@ HIGHPASS_GRID = (0.0, 1 / 12, 1 / 8, 1 / 6)
 #: point spread.
 ESTIMATION_PATTERNS = 40
 
+#: Patterns whose derivatives are processed together: their temporaries
+#: (4 MB at 8 columns of 120 px) stay in the allocator's reuse, where a
+#: whole stack's were new memory at every pass.
+DERIVATIVE_BLOCK = 8
+
 #: Kikuchi contrasts (relative to the background) the full field tries.
 CONTRAST_GRID = (0.0, 0.05, 0.1, 0.15, 0.2, 0.3)
 
@@ -170,75 +175,91 @@ class _Processing:
         """The model patterns (N, P) of simulated ones *s0*, and their
         derivatives (N, K, P) from those of *s0*, *columns* (arrays
         (N, P, k), stacked in their order; None without them). The
-        derivatives are processed and returned in float32 pattern planes:
-        a dozen passes over them were the full field's largest cost, and
-        copying them back to float64 (N, P, K) half of what remained; the
-        patterns stay float64."""
+        derivatives are processed and returned in float32 pattern planes,
+        :data:`DERIVATIVE_BLOCK` patterns at a time: a dozen passes over
+        them were the full field's largest cost, copying them back to
+        float64 (N, P, K) half of what remained, and whole-stack
+        temporaries (46 MB at 100 patterns of 120 px) were allocated
+        afresh by every pass. The patterns stay float64."""
         n, p = s0.shape
-        x = self._planes(s0[..., None])
-        d = None
-        if len(columns):
-            ks = np.cumsum([0] + [c.shape[2] for c in columns])
-            d = np.empty((n, ks[-1]) + self.shape, dtype=np.float32)
+        x, kept = self._patterns(self._planes(s0[..., None]))
+        x = np.ascontiguousarray(x[:, 0], dtype=np.float64).reshape(n, p)
+        if not len(columns):
+            return x, None
+        ks = np.cumsum([0] + [c.shape[2] for c in columns])
+        d = np.empty((n, ks[-1]) + self.shape, dtype=np.float32)
+        for i in range(0, n, DERIVATIVE_BLOCK):
+            block = slice(i, i + DERIVATIVE_BLOCK)
             for c, k0, k1 in zip(columns, ks[:-1], ks[1:]):
                 # Cast and transposed in one pass, no stacked float64 copy
-                d[:, k0:k1] = np.moveaxis(c.reshape((n,) + self.shape + (-1,)), 3, 1)
+                planes = c[block].reshape((-1,) + self.shape + (k1 - k0,))
+                d[block, k0:k1] = np.moveaxis(planes, 3, 1)
+            # What is per pattern, the block's; what is shared, whole
+            part = [a if a is None or len(a) < n else a[block] for a in kept]
+            d[block] = self._derivatives(d[block], *part)
+        return x, d.reshape(n, d.shape[1], p)
+
+    def _patterns(self, x: np.ndarray) -> tuple[np.ndarray, tuple]:
+        """The processed pattern planes of simulated ones *x* (N, 1, rows,
+        columns), and what their derivatives need: the standardised
+        pattern (float32), its standard deviation, the divisor of the
+        static background removal and, with a contrast and a high-pass,
+        the low-pass and the pattern divided by it (else None)."""
         axes = (2, 3)
         x = x - x.mean(axis=axes, keepdims=True)
         sd = np.sqrt((x**2).mean(axis=axes, keepdims=True))
         x = x / sd
-
-        def f32(a):
-            return np.asarray(a, dtype=np.float32)
-
-        # The derivatives are changed in place, divisions as products with
-        # reciprocals and the projection on the pattern as one batched
-        # matrix product: temporaries of the (N, K, rows, columns) stack
-        # were half of the Jacobian's processing time
-        if d is not None:
-            d -= d.mean(axis=axes, keepdims=True)
-            xf = f32(x)
-            flat = d.reshape(n, d.shape[1], p)
-            along = (flat @ xf.reshape(n, p, 1)) / p
-            d -= xf * along[..., None]
-            d *= f32(1 / sd)
+        xs = x.astype(np.float32)
         lobe = 1.0 if self.lobe is None else self.lobe
         c = self.contrast
+        low = None
         if c:
             # Step 1 and 2 in counts; 3: the static background divided out
             raw = lobe * (1 + c * x)
             den = raw.mean(axis=0, keepdims=True) if self.ghost else lobe
             den = self._blur(den * np.ones((1, 1) + self.shape))
             x = self._blur(raw) / den
-            if d is not None:
-                d *= f32(c * lobe)
-                d = self._blur(d)
-                d *= f32(1 / den)
             if self.highpass:
                 low = self._lowpass(x)
                 x = x / low
-                if d is not None:
-                    low_d = self._lowpass(d)
-                    low_d *= f32(x)
-                    d -= low_d
-                    d *= f32(1 / low)
         else:
             # The faint-pattern limit of the same: the background's blur
             # divided out of the blurred modulation, the ghost subtracted
-            blurred_lobe = self._blur(lobe * np.ones((1, 1) + self.shape))
-            x = self._blur(lobe * x) / blurred_lobe
-            if d is not None:
-                d *= f32(lobe)
-                d = self._blur(d)
-                d *= f32(1 / blurred_lobe)
+            den = self._blur(lobe * np.ones((1, 1) + self.shape))
+            x = self._blur(lobe * x) / den
             if self.ghost:
                 x = x - x.mean(axis=0, keepdims=True)
             if self.highpass:
                 x = x - self._lowpass(x)
-                if d is not None:
-                    d -= self._lowpass(d)
-        x = np.ascontiguousarray(x[:, 0], dtype=np.float64).reshape(n, p)
-        return x, None if d is None else d.reshape(n, d.shape[1], p)
+        return x, (xs, sd, den, low, None if low is None else x)
+
+    def _derivatives(self, d, xs, sd, den, low, xh) -> np.ndarray:
+        """The steps of :meth:`_patterns` applied to derivatives *d* (m, K,
+        rows, columns) of its patterns, in place where they can be, with
+        what it kept of them (the ghost held: a pattern moves the map's
+        mean by 1 / N of its own change). Divisions are products with
+        reciprocals, the projection on the pattern one batched product."""
+
+        def f32(a):
+            return np.asarray(a, dtype=np.float32)
+
+        m, k, p = d.shape[0], d.shape[1], xs.shape[2] * xs.shape[3]
+        d -= d.mean(axis=(2, 3), keepdims=True)
+        along = (d.reshape(m, k, p) @ xs.reshape(m, p, 1)) / p
+        d -= xs * along[..., None]
+        d *= f32(1 / sd)
+        lobe = 1.0 if self.lobe is None else self.lobe
+        d *= f32(self.contrast * lobe if self.contrast else lobe)
+        d = self._blur(d)
+        d *= f32(1 / den)
+        if self.highpass and low is not None:
+            low_d = self._lowpass(d)
+            low_d *= f32(xh)
+            d -= low_d
+            d *= f32(1 / low)
+        elif self.highpass:
+            d -= self._lowpass(d)
+        return d
 
 
 def _processed_ncc(e, s0, processing):

@@ -9,6 +9,8 @@ Layer 3 (patterns): may import geometry, io, patterns.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from scipy import ndimage
 
@@ -26,34 +28,46 @@ MIN_DISTANCE = 3
 BLOCK_SIZE = 5
 
 
-def _features_opencv(cv2, z, boxes, per_roi):
+@functools.lru_cache(maxsize=32)
+def _crops(boxes, shape):
+    """Per ROI box: the crop around it with a margin of :data:`BLOCK_SIZE`
+    (so that corner strengths at the ROI's edge are those of the whole
+    image) and the ROI's mask in it, read-only; None for an empty ROI.
+    Cached: the same for every pattern of a map."""
+    out = []
+    for box in boxes:
+        if box is None:
+            out.append(None)
+            continue
+        r0, r1, c0, c1 = box
+        R0, R1 = max(r0 - BLOCK_SIZE, 0), min(r1 + BLOCK_SIZE, shape[0])
+        C0, C1 = max(c0 - BLOCK_SIZE, 0), min(c1 + BLOCK_SIZE, shape[1])
+        mask = np.zeros((R1 - R0, C1 - C0), np.uint8)
+        mask[r0 - R0 : r1 - R0, c0 - C0 : c1 - C0] = 255
+        mask.flags.writeable = False
+        out.append((R0, R1, C0, C1, mask))
+    return tuple(out)
+
+
+def _features_opencv(cv2, z, labels, boxes, per_roi):
     # goodFeaturesToTrack takes float32 (only LK needs 8 bits): 8-bit
     # steps would make corners out of smooth ramps
     img = z.astype(np.float32)
     eig = cv2.cornerMinEigenVal(img, BLOCK_SIZE)
     both = cv2.cornerEigenValsAndVecs(img, BLOCK_SIZE, 3)[..., :2]
     floor = QUALITY_FLOOR * float(both.max())
+    roi_max = ndimage.maximum(eig, labels, np.arange(len(boxes)))
     pts = []
     # One call per ROI so that every ROI gets its quota (on the whole
-    # image, strong band intersections would take all the corners); the
-    # crop has a margin so that corner strengths at the ROI edge are those
-    # of the whole image
-    margin = BLOCK_SIZE
-    for box in boxes:
-        if box is None:
+    # image, strong band intersections would take all the corners)
+    for crop, top in zip(_crops(boxes, img.shape), roi_max):
+        if crop is None or not top > floor:
             continue
-        r0, r1, c0, c1 = box
-        roi_max = float(eig[r0:r1, c0:c1].max())
-        if not roi_max > floor:
-            continue
-        R0, R1 = max(r0 - margin, 0), min(r1 + margin, img.shape[0])
-        C0, C1 = max(c0 - margin, 0), min(c1 + margin, img.shape[1])
-        mask = np.zeros((R1 - R0, C1 - C0), np.uint8)
-        mask[r0 - R0 : r1 - R0, c0 - C0 : c1 - C0] = 255
+        R0, R1, C0, C1, mask = crop
         found = cv2.goodFeaturesToTrack(
             img[R0:R1, C0:C1],
             maxCorners=per_roi,
-            qualityLevel=max(QUALITY, floor / roi_max),
+            qualityLevel=max(QUALITY, floor / top),
             minDistance=MIN_DISTANCE,
             mask=mask,
             blockSize=BLOCK_SIZE,

@@ -169,7 +169,7 @@ def pattern_vectors(
     if backend == "opencv":
         cv2 = _import_cv2()
         img_a, img_b = _to_uint8(a, b)
-        pts = _features_opencv(cv2, a, boxes, o["features_per_roi"])
+        pts = _features_opencv(cv2, a, labels, boxes, o["features_per_roi"])
         track = partial(_track_opencv, cv2, window=window, levels=top)
     else:
         img_a, img_b = a, b
