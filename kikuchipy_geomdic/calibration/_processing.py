@@ -130,13 +130,6 @@ class _Processing:
         # 40x slower with a transposed view)
         return tuple(np.ascontiguousarray(m) for m in (ar, br, bc.T, ac.T))
 
-    def _planes(self, a: np.ndarray, dtype=np.float64) -> np.ndarray:
-        # (N, P, K) -> contiguous pattern planes (N, K, rows, columns):
-        # matmul over strided ones was 100x slower
-        n, k = a.shape[0], int(np.prod(a.shape[2:], dtype=int))
-        planes = np.moveaxis(a.reshape((n,) + self.shape + (k,)), 3, 1)
-        return np.ascontiguousarray(planes, dtype=dtype)
-
     def _lowpass(self, planes: np.ndarray) -> np.ndarray:
         ar, br, bct, act = (m.astype(planes.dtype, copy=False) for m in self._lowpass_factors)
         # The products with the long factors as single matrix products over
@@ -172,7 +165,8 @@ class _Processing:
     def __call__(
         self, s0: np.ndarray, columns: tuple[np.ndarray, ...] = ()
     ) -> tuple[np.ndarray, np.ndarray | None]:
-        """The model patterns (N, P) of simulated ones *s0*, and their
+        """The model patterns (N, P) of simulated ones *s0* (float32 if
+        they are, else float64), and their
         derivatives (N, K, P) from those of *s0*, *columns* (arrays
         (N, P, k), stacked in their order; None without them). The
         derivatives are processed and returned in float32 pattern planes,
@@ -180,10 +174,11 @@ class _Processing:
         them were the full field's largest cost, copying them back to
         float64 (N, P, K) half of what remained, and whole-stack
         temporaries (46 MB at 100 patterns of 120 px) were allocated
-        afresh by every pass. The patterns stay float64."""
+        afresh by every pass."""
         n, p = s0.shape
-        x, kept = self._patterns(self._planes(s0[..., None]))
-        x = np.ascontiguousarray(x[:, 0], dtype=np.float64).reshape(n, p)
+        dtype = np.float32 if s0.dtype == np.float32 else np.float64
+        x, kept = self._patterns(np.asarray(s0, dtype=dtype).reshape((n, 1) + self.shape))
+        x = np.ascontiguousarray(x[:, 0]).reshape(n, p)
         if not len(columns):
             return x, None
         ks = np.cumsum([0] + [c.shape[2] for c in columns])
@@ -210,7 +205,7 @@ class _Processing:
         sd = np.sqrt((x**2).mean(axis=axes, keepdims=True))
         x = x / sd
         xs = x.astype(np.float32)
-        lobe = 1.0 if self.lobe is None else self.lobe
+        lobe = 1.0 if self.lobe is None else self.lobe.astype(x.dtype)
         c = self.contrast
         low = None
         if c:
@@ -275,8 +270,12 @@ def _estimate_processing(problem, arrays, geometry, rotations) -> _Processing:
     contrast (:data:`CONTRAST_GRID`)."""
     n = len(problem.points)
     shape = tuple(problem.experimental.shape[1:])
-    e = ori.standardise(problem.experimental.reshape(n, -1).astype(np.float64))
-    s0 = ori.project_patterns(rotations, geometry.detector(problem.points), arrays).reshape(n, -1)
+    # In float32: the candidates' correlations differ in the fourth
+    # decimal, float32 rounds in the seventh, and the passes over the
+    # patterns were most of the choice's cost
+    e = ori.standardise(problem.experimental.reshape(n, -1).astype(np.float32))
+    s0 = ori.project_patterns(rotations, geometry.detector(problem.points), arrays)
+    s0 = s0.reshape(n, -1).astype(np.float32)
     # The high-pass and the point spread, properties of each pattern, on
     # every k-th pattern; the ghost and the contrast on all of them (on 50
     # of 121 the map's mean pattern was not found)

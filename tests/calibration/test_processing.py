@@ -3,7 +3,6 @@ import pytest
 from scipy import ndimage
 
 from kikuchipy_geomdic.calibration import _processing
-from kikuchipy_geomdic.calibration._full_field import _project_out
 from kikuchipy_geomdic.calibration._processing import _Processing
 
 SHAPE = (24, 30)
@@ -64,22 +63,3 @@ def test_blur_is_scipys_gaussian_filter(patterns, dtype, monkeypatch):
     # Without OpenCV, scipy's
     monkeypatch.setattr(_processing, "_import_cv2", lambda: None)
     assert np.abs(proc._blur(planes) - expected).max() < tol
-
-
-def test_project_out_removes_gain_and_offset():
-    rng = np.random.default_rng(1)
-    n, k, p = 3, 2, 50
-    unit = rng.normal(size=(n, p))
-    unit -= unit.mean(axis=1, keepdims=True)
-    unit /= np.linalg.norm(unit, axis=1, keepdims=True)
-    a = rng.normal(size=(n, k, p)).astype(np.float32)
-    scale = np.array([1.0, -2.0, 0.5])
-    out = _project_out(a, unit, scale)
-    assert out.shape == (n, p, k)
-    expected = np.empty((n, p, k))
-    for i in range(n):
-        basis = np.stack([np.ones(p), unit[i]], axis=1)
-        cols = a[i].T.astype(np.float64)
-        coef, *_ = np.linalg.lstsq(basis, cols, rcond=None)
-        expected[i] = scale[i] * (cols - basis @ coef)
-    assert np.allclose(out, expected, atol=1e-5)
