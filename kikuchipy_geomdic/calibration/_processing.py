@@ -166,10 +166,10 @@ class _Processing:
         self, s0: np.ndarray, columns: tuple[np.ndarray, ...] = ()
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """The model patterns (N, P) of simulated ones *s0* (float32 if
-        they are, else float64), and their
-        derivatives (N, K, P) from those of *s0*, *columns* (arrays
-        (N, P, k), stacked in their order; None without them). The
-        derivatives are processed and returned in float32 pattern planes,
+        they are, else float64), and their derivatives (N, K, P) from
+        those of *s0*, *columns* (arrays (N, P, k), stacked in their
+        order; None without them). The derivatives are processed and
+        returned in float32 pattern planes,
         :data:`DERIVATIVE_BLOCK` patterns at a time: a dozen passes over
         them were the full field's largest cost, copying them back to
         float64 (N, P, K) half of what remained, and whole-stack
