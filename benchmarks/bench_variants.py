@@ -60,6 +60,9 @@ solver: every variant of every point refined, the kept one chosen by
     calibrated by ``refine_geometry_dic(..., pseudo_symmetry_ops=)`` from
     the start at the start detector (PC errors in standard errors, angles
     kept at the start), then reindexed at the calibrated detector.
+    ``--no-static``: the user removes only the dynamic background. By
+    default the static one is divided out too, with the map's mean as
+    kikuchipy users often take it, which on one crystal holds its bands.
 
 Usage::
 
@@ -67,6 +70,7 @@ Usage::
     python benchmarks/bench_variants.py picks --mismatch --methods geomdic --doses 30 300
     python benchmarks/bench_variants.py detectors
     python benchmarks/bench_variants.py users --seeds 0 1 2 --doses 30 150
+    python benchmarks/bench_variants.py users --no-static --calibrate --detectors true
 """
 
 from __future__ import annotations
@@ -348,7 +352,8 @@ def users(args) -> None:
             with _quiet():
                 sm = synthetic.synthetic_map(
                     "BaTiO3", (args.rows, args.rows), orientations="stripes",
-                    shape=(args.size, args.size), seed=seed, camera=Camera(dose=dose),
+                    shape=(args.size, args.size), seed=seed,
+                    camera=Camera(dose=dose, static=not args.no_static),
                     start="indexed", orientation_error=1.0,
                 )  # fmt: skip
             err = _start_error(sm)
@@ -473,6 +478,7 @@ def main(argv=None) -> None:
     p.add_argument(
         "--detectors", nargs="+", help="users: names of DETECTOR_ERRORS to run (default all)"
     )
+    p.add_argument("--no-static", action="store_true", help="users: no static background removal")
     p.add_argument("--offset", type=float, default=0.03, help="PC offset of the start")
     p.add_argument("--mismatch", action="store_true", help="picks: the ebsdsim pattern")
     p.add_argument("--methods", nargs="+", default=["geomdic", "kikuchipy"])
