@@ -382,7 +382,7 @@ def users(args) -> None:
                 kept = [
                     n
                     for n in ("tilt", "azimuthal")
-                    if res.parameters[n] == getattr(sm.start_detector, n)
+                    if abs(res.parameters[n] - getattr(sm.start_detector, n)) < 1e-9
                 ]
                 print(
                     f"  calibrated in {time.perf_counter() - t1:.0f} s: PC error "
