@@ -292,13 +292,14 @@ def _joint_step(
             state.rotations * rotations_from_vectors(update.rotations),
         )
         after = _rms_displacement(trial.field, var)
-        # A step that frees a poorly determined parameter must lower the
-        # displacement: near the noise floor a consistent landing point is
-        # enough for the others, but a degenerate one is consistent
-        # anywhere along it (on one crystal with domains the azimuthal
-        # angle jumped from -0.45 to 21.6 deg, judged significant, with
-        # the RMS displacement at 0.3950 -> 0.3953 % of the width; it ended
-        # at 39 deg, the PC 7 standard errors off)
+        # A step that takes a poorly determined parameter off its start
+        # must lower the displacement: near the noise floor a consistent
+        # landing point is enough for the others, but along a degenerate
+        # direction every point is consistent (on one crystal with
+        # domains the azimuthal angle jumped from -0.45 to 21.6 deg,
+        # judged significant, with the RMS displacement at 0.3950 ->
+        # 0.3953 % of the width; it ended at 39 deg, the PC 7 standard
+        # errors off)
         accepted = bool(after < before) or (
             not released
             and after < (1 + MIN_FALL) * before

@@ -164,7 +164,7 @@ def _full_field(problem, state, prior, first_it, report) -> _FullField:
         # chooses them only once in the basin, so one that stopped short of
         # it left the starts' (on a BaTiO3 domain map from users' starts,
         # a random variant per point: the PC ended 4.7e-3 off at 18
-        # standard errors, and within one with the variants chosen here)
+        # standard errors; within two with the variants chosen here)
         state = replace(state, rotations=problem.best_variants(start, state.rotations))
     processing = _estimate_processing(problem, problem.arrays, start, state.rotations)
     history = []
