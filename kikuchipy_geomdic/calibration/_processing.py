@@ -233,7 +233,14 @@ class _Processing:
         rows, columns) of its patterns, in place where they can be, with
         what it kept of them (the ghost held: a pattern moves the map's
         mean by 1 / N of its own change). Divisions are products with
-        reciprocals, the projection on the pattern one batched product."""
+        reciprocals, the projection on the pattern one batched product.
+
+        The ghost is held along the geometry's columns too, though every
+        pattern moves it there. Differentiated exactly along them alone,
+        the detector angles, which a common rotation of the crystals
+        mimics, came out determined to 0.015 deg and 0.7-0.9 deg off on
+        two moderate-noise maps of the realistic benchmark: the rotations'
+        columns, one pattern each, cannot carry the mean's change."""
 
         def f32(a):
             return np.asarray(a, dtype=np.float32)
