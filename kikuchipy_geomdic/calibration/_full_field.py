@@ -414,6 +414,7 @@ def _gauss_newton(
             f"  iteration {first_it + it} (full field): chi2 {full.chi2:.6g}, "
             f"point spread {processing.psf:.2f} px, high-pass {processing.highpass:.1f} px, "
             f"contrast {processing.contrast:g}, ghost {processing.ghost}"
+            + ("" if processing.static else ", static background left in")
             + (f", held {', '.join(held)}" if held else "")
         )
         # Steps this small leave the covariance as it was; the

@@ -102,17 +102,17 @@ class _Processing:
        features down the slope, a magnification about the lobe's peak
        that pcz absorbs (measured: 1e-4 on 96 px Ni patterns with a blur
        of 0.6 px);
-    3. static background removal: divided by the blurred lobe, and with
-       *ghost* by the map's mean pattern, bands and all (kikuchipy's
-       static background removal with the map's own mean holds bands on a
-       map of few grains);
+    3. with *static*, static background removal: divided by the blurred
+       lobe, and with *ghost* by the map's mean pattern, bands and all
+       (kikuchipy's static background removal with the map's own mean
+       holds bands on a map of few grains); without, the lobe stays;
     4. dynamic background removal: divided by its Gaussian low-pass of
        *highpass* px (0: none).
 
     A *contrast* of 0 is the limit of a faint pattern, where the
-    divisions become subtractions. Every step is differentiable, so
-    Jacobian columns go through it with the pattern. Fitted as
-    ``a * S + b`` instead (the model family of
+    divisions become subtractions (the static background divided out).
+    Every step is differentiable, so Jacobian columns go through it with
+    the pattern. Fitted as ``a * S + b`` instead (the model family of
     ``degrade_patterns``), processed Ni patterns moved pcz by 5
     standard errors."""
 
@@ -121,6 +121,7 @@ class _Processing:
     highpass: float = 0.0
     contrast: float = 0.0
     ghost: bool = False
+    static: bool = True
     lobe: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     @cached_property
@@ -209,10 +210,12 @@ class _Processing:
         c = self.contrast
         low = None
         if c:
-            # Step 1 and 2 in counts; 3: the static background divided out
+            # Step 1 and 2 in counts; 3: the static background divided out,
+            # if it was
             raw = lobe * (1 + c * x)
-            den = raw.mean(axis=0, keepdims=True) if self.ghost else lobe
-            den = self._blur(den * np.ones((1, 1) + self.shape))
+            den = np.ones((1, 1) + self.shape)
+            if self.static:
+                den = self._blur(den * (raw.mean(axis=0, keepdims=True) if self.ghost else lobe))
             x = self._blur(raw) / den
             if self.highpass:
                 low = self._lowpass(x)
@@ -313,4 +316,18 @@ def _estimate_processing(problem, arrays, geometry, rotations) -> _Processing:
             psf = float(sigmas[k] + PSF_STEP * 0.5 * (a - c) / den)
     proc = replace(proc, psf=psf)
     proc = best(replace(proc, ghost=g) for g in (False, True))
-    return best(replace(proc, contrast=c) for c in CONTRAST_GRID)
+    proc = best(replace(proc, contrast=c) for c in CONTRAST_GRID)
+    if proc.lobe is not None and not proc.ghost:
+        # The static background left in: the dynamic removal then divides
+        # the lobe too, and the contrast weighs the lobe it leaves against
+        # the bands, so both are chosen again with it
+        kept = best(
+            (
+                replace(proc, static=False, contrast=c, highpass=h * shape[1])
+                for c in CONTRAST_GRID[1:]
+                for h in HIGHPASS_GRID[1:]
+            ),
+            few,
+        )
+        proc = best((proc, kept))
+    return proc

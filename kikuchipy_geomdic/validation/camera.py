@@ -105,6 +105,8 @@ class Camera:
         Standard deviation (px) of the phosphor's Gaussian blur.
     static, dynamic
         Whether the user removes the static and the dynamic background.
+        The static background (the map's mean) is kept with the map
+        either way, as a microscope records one.
 
     Examples
     --------
@@ -125,15 +127,15 @@ class Camera:
     def process(self, signal: EBSD) -> None:
         """Remove the static and dynamic backgrounds of a raw map in place,
         as a user does with kikuchipy (lazy signals stay lazy)."""
+        mean = signal.data.mean(axis=(0, 1))
+        if isinstance(mean, da.Array):
+            mean = mean.compute()
+        static_bg = np.round(mean).astype(signal.data.dtype)
         if self.static:
-            mean = signal.data.mean(axis=(0, 1))
-            if isinstance(mean, da.Array):
-                mean = mean.compute()
-            static_bg = np.round(mean).astype(signal.data.dtype)
             signal.remove_static_background("divide", static_bg=static_bg, show_progressbar=False)
-            # Kept with the map, as kikuchipy's readers keep the one a
-            # microscope records
-            signal.static_background = static_bg
+        # Kept with the map, removed or not, as kikuchipy's readers keep
+        # the one a microscope records
+        signal.static_background = static_bg
         if self.dynamic:
             signal.remove_dynamic_background("divide", show_progressbar=False)
 
