@@ -21,6 +21,7 @@ from orix.crystal_map import CrystalMap, Phase
 
 import kikuchipy_geomdic as kg
 from kikuchipy_geomdic.calibration.refinement import calibration_points
+from kikuchipy_geomdic.calibration.uncertainty import UNDETERMINED_RANGE
 from kikuchipy_geomdic.geometry import rotation_vectors
 from kikuchipy_geomdic.indexing.variants import variant_operators
 from kikuchipy_geomdic.validation import master_patterns, synthetic
@@ -178,7 +179,8 @@ def test_an_angle_that_walked_insignificantly_is_put_back():
     too: one that ended within three standard errors of its start (as the
     azimuthal angle of a BaTiO3 domain map from users' starts walked 17
     deg on a standard error of 6.2, measured) is not determined, and the
-    refinement runs again with it fixed; a parameter fixed stays fixed."""
+    refinement runs again with it fixed; so is one that moved farther
+    than UNDETERMINED_RANGE; a parameter fixed stays fixed."""
     from types import SimpleNamespace
 
     from kikuchipy.detectors import EBSDDetector
@@ -194,7 +196,13 @@ def test_an_angle_that_walked_insignificantly_is_put_back():
     se = {"pcx": 2e-3, "pcy": 2e-3, "pcz": 2e-3, "azimuthal": 6.2}
     carry = _JointCarry(SimpleNamespace(geometry=moved), 0.0, standard_errors=se)
     assert _walked(problem, start, carry) == ("azimuthal",)  # the PC may move
-    assert _walked(problem, start, replace(carry, standard_errors={**se, "azimuthal": 5})) == ()
+    # 17.5 deg at 3.5 standard errors: significant, but out of range
+    assert _walked(problem, start, replace(carry, standard_errors={**se, "azimuthal": 5})) == (
+        "azimuthal",
+    )
+    # 3.5 deg at 7 standard errors: kept
+    near = replace(carry, state=SimpleNamespace(geometry=start.updated({"azimuthal": 3.5})))
+    assert _walked(problem, start, replace(near, standard_errors={**se, "azimuthal": 0.5})) == ()
     assert _walked(problem, start, replace(carry, fixed=("azimuthal",))) == ()
     update = SimpleNamespace(standard_errors=np.array([1e-4, 1e-4, 1e-4, 0.01]), delta=np.ones(4))
     _, weak, free, _ = _choose_free(names, update, replace(carry, fixed=("azimuthal",)))
@@ -714,20 +722,22 @@ def test_batio3_wrong_variants_corrected(kind):
     assert np.array_equal(res.xmap.prop["pseudo_symmetry_index"], np.where(wrong, 3, 0))
 
 
-@pytest.fixture(scope="module", params=[0, 2])
+@pytest.fixture(scope="module", params=[(150, 0), (150, 2), (30, 2)])
 def one_crystal_users(request):
     """A BaTiO3 stripe map from users' starts (a random variant per point,
     refined by kikuchipy at the start geometry), realistic patterns with
     only the dynamic background removed (the map's mean, as a static
     background, holds the bands of one crystal; it is kept with the map),
-    calibrated with the operators: seed 0 and 2."""
+    calibrated with the operators: seeds 0 and 2 at 150 counts/px, seed 2
+    at 30."""
+    dose, seed = request.param
     sm = synthetic.synthetic_map(
         "BaTiO3",
         (13, 13),
         orientations="stripes",
         shape=(120, 120),
-        seed=request.param,
-        camera=Camera(dose=150, static=False),
+        seed=seed,
+        camera=Camera(dose=dose, static=False),
         start="indexed",
         orientation_error=1.0,
     )
@@ -739,7 +749,7 @@ def one_crystal_users(request):
         pseudo_symmetry_ops=variant_operators()[1:],
         show_progressbar=False,
     )
-    return request.param, sm, res
+    return dose, sm, res
 
 
 def test_one_crystal_from_users_starts(one_crystal_users):
@@ -750,11 +760,17 @@ def test_one_crystal_from_users_starts(one_crystal_users):
     # jumped to 21.6 deg in a step that did not lower the displacement
     # and ended at 39 deg, the PC 7 standard errors off, converged; then,
     # with the lobe modelled as divided out though it was not, pcx ended
-    # 1.8e-3 off at 3.5 standard errors
-    seed, sm, res = one_crystal_users
+    # 1.8e-3 off at 3.5 standard errors. At 30 counts/px it walked to 50
+    # deg on falls of the displacement below its noise floor, the PC 9.5e-3
+    # off at 19 standard errors; held, the full field moved the tilt
+    # difference 9.6 deg, at "4.4 standard errors"
+    dose, sm, res = one_crystal_users
     err, _ = _errors(res, sm)
     assert res.parameters["azimuthal"] == pytest.approx(sm.start_geometry.azimuthal, abs=1e-9)
-    assert max(abs(err[k]) for k in ("pcx", "pcy", "pcz")) <= 1e-3, err
+    start, end = sm.start_geometry, res.parameters
+    moved = (end["tilt"] - end["sample_tilt"]) - (start.tilt - start.sample_tilt)
+    assert abs(moved) <= UNDETERMINED_RANGE
+    assert max(abs(err[k]) for k in ("pcx", "pcy", "pcz")) <= (1e-3 if dose == 150 else 3e-3), err
     for k in ("pcx", "pcy", "pcz"):
         assert abs(err[k]) <= 3 * res.standard_errors[k], (k, err[k])
 
