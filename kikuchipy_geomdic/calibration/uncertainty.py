@@ -1,5 +1,6 @@
 """Standard errors, determinacy and adequacy: how well the map determines
-each parameter (:data:`DETERMINACY_LIMITS`, :data:`SIGNIFICANCE`), the
+each parameter (:data:`DETERMINACY_LIMITS`, :data:`SIGNIFICANCE`,
+:data:`UNDETERMINED_RANGE`), the
 DIC stage's standard errors and the check of the full field against the
 DIC stage (:data:`ADEQUACY_LIMIT`).
 
