@@ -321,7 +321,7 @@ def _estimate_processing(problem, arrays, geometry, rotations) -> _Processing:
         # The static background left in: the dynamic removal then divides
         # the lobe too, and the contrast weighs the lobe it leaves against
         # the bands, so both are chosen again with it
-        kept = best(
+        left_in = best(
             (
                 replace(proc, static=False, contrast=c, highpass=h * shape[1])
                 for c in CONTRAST_GRID[1:]
@@ -329,5 +329,5 @@ def _estimate_processing(problem, arrays, geometry, rotations) -> _Processing:
             ),
             few,
         )
-        proc = best((proc, kept))
+        proc = best((proc, left_in))
     return proc
