@@ -185,7 +185,8 @@ def make_map(c: dict, seed: int, dose: float):
 
 
 def run_one(sm, c: dict, seed: int, t_map: float) -> dict:
-    from kikuchipy_geomdic.calibration.refinement import TILT_DIFFERENCE, refine_geometry_dic
+    from kikuchipy_geomdic.calibration.refinement import refine_geometry_dic
+    from kikuchipy_geomdic.calibration.uncertainty import TILT_DIFFERENCE
 
     t0 = time.perf_counter()
     res = refine_geometry_dic(
