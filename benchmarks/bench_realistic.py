@@ -35,6 +35,7 @@ Usage::
 
     python benchmarks/bench_realistic.py                 # all cases, seed 0
     python benchmarks/bench_realistic.py --cases moderate far --seeds 0 1 2
+    python benchmarks/bench_realistic.py --cases emsoft-data --seeds 2 3 4 --dose 10000
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ import subprocess
 import sys
 import time
 import warnings
+from dataclasses import replace
 
 import numpy as np
 
@@ -64,9 +66,12 @@ PC = ("pcx", "pcy", "pcz")
 ANGLES = ("azimuthal", "tilt-sample_tilt")
 
 
-def realistic_map(case: str, seed: int, side: int = 11, size: int = 96):
-    """The synthetic map of *case* (see the module docstring)."""
-    cfg = CASES[case]
+def realistic_map(case: str, seed: int, side: int = 11, size: int = 96, dose=None):
+    """The synthetic map of *case* (see the module docstring), its camera's
+    counts per pixel replaced by *dose* if given."""
+    cfg = dict(CASES[case])
+    if dose is not None and cfg["camera"] is not None:
+        cfg["camera"] = replace(cfg["camera"], dose=dose)
     data = master_patterns.master_pattern("Ni", kind=cfg.get("data", "emsoft"))
     calibrate = master_patterns.master_pattern(
         "Ni", kind=cfg.get("calibrate", cfg.get("data", "emsoft"))
@@ -91,8 +96,8 @@ def _errors(sm, parameters, detector):
     return err, float(np.abs(detector.pc - sm.detector.pc).max())
 
 
-def run(case: str, seed: int, side: int, size: int, kikuchipy: bool) -> list[dict]:
-    sm = realistic_map(case, seed, side, size)
+def run(case: str, seed: int, side: int, size: int, kikuchipy: bool, dose=None) -> list[dict]:
+    sm = realistic_map(case, seed, side, size, dose)
     methods = [("default", {}), ("DIC alone", dict(full_field=False))]
     rows, crb = [], None
     for method, kw in methods:
@@ -147,6 +152,9 @@ def main(argv=None) -> None:
     p.add_argument("--side", type=int, default=11)
     p.add_argument("--size", type=int, default=96)
     p.add_argument("--kikuchipy", action="store_true", help="also kikuchipy's NM, averaged")
+    p.add_argument(
+        "--dose", type=float, help="the camera's counts per pixel instead of the case's"
+    )
     args = p.parse_args(argv)
     version = subprocess.run(
         ["git", "describe", "--always", "--dirty"], capture_output=True, text=True
@@ -162,7 +170,7 @@ def main(argv=None) -> None:
         for seed in args.seeds:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                rows = run(case, seed, args.side, args.size, args.kikuchipy)
+                rows = run(case, seed, args.side, args.size, args.kikuchipy, args.dose)
             for r in rows:
                 print(
                     f"{case:<13s} {seed:4d} {r['method']:<12s} {r['time']:6.1f} "
