@@ -1,8 +1,7 @@
 """Standard errors, determinacy and adequacy: how well the map determines
 each parameter (:data:`DETERMINACY_LIMITS`, :data:`SIGNIFICANCE`,
-:data:`UNDETERMINED_RANGE`), the
-DIC stage's standard errors and the check of the full field against the
-DIC stage (:data:`ADEQUACY_LIMIT`).
+:data:`UNDETERMINED_RANGE`), the DIC stage's standard errors and the check
+of the full field against the DIC stage (:data:`ADEQUACY_LIMIT`).
 
 Layer 6 (calibration): may import geometry, io, patterns, indexing, plotting
 and calibration.
