@@ -84,13 +84,14 @@ MIN_FALL = 0.1
 UNMATCHED_RMS_PX = 4.0
 
 
-def _check_matched(outcome: _LoopOutcome) -> _LoopOutcome:
+def _check_matched(outcome: _LoopOutcome) -> tuple[_LoopOutcome, bool]:
     """*outcome*, not converged and with a warning, if its last field's RMS
-    displacement is above :data:`UNMATCHED_RMS_PX`."""
+    displacement is above :data:`UNMATCHED_RMS_PX`; and whether it is
+    below (the features matched)."""
     field = outcome.state.field
     rms = _rms_displacement(field) * field.shape[1]
     if not rms > UNMATCHED_RMS_PX:
-        return outcome
+        return outcome, True
     warnings.warn(
         f"The DIC stage ended with an RMS displacement of {rms:.1f} px (above "
         f"{UNMATCHED_RMS_PX:g} px): the simulated and the recorded features "
@@ -99,7 +100,7 @@ def _check_matched(outcome: _LoopOutcome) -> _LoopOutcome:
         UserWarning,
         stacklevel=3,
     )
-    return replace(outcome, converged=False)
+    return replace(outcome, converged=False), False
 
 
 def _dic_stage(

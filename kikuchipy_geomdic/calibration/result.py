@@ -72,7 +72,10 @@ class GeometryRefinementResult:
         joint normal matrix at the refined geometry (rotations
         eliminated, ``orientation_prior`` included) and the measured
         residual scatter. ``inf`` for tilt and sample_tilt when both are
-        refined: only their difference is determined.
+        refined: only their difference is determined; ``inf`` for every
+        parameter when the DIC stage's features did not match
+        (:data:`~kikuchipy_geomdic.calibration._dic_stage.UNMATCHED_RMS_PX`)
+        and no full field ran: the patterns do not determine the geometry.
     undetermined
         Parameters the map determines only poorly (standard error above
         :data:`~kikuchipy_geomdic.calibration.uncertainty.DETERMINACY_LIMITS`;
@@ -196,9 +199,15 @@ class GeometryRefinementResult:
             if name in self.undetermined or (
                 name == TILT_DIFFERENCE and "tilt" in self.undetermined
             ):
-                line += "  poorly determined" + (", kept" if a == b else "")
+                own = TILT_DIFFERENCE if name in ("tilt", "sample_tilt") else name
+                none = np.isinf(self.standard_errors.get(own, 0))
+                line += "  not determined" if none else "  poorly determined"
+                line += ", kept" if a == b else ""
             lines.append(line)
-        if any(not np.isfinite(self.standard_errors.get(n, 0)) for n in self.parameter_names):
+        pcs = [n for n in self.parameter_names if n.startswith("pc")]
+        if pcs and all(np.isinf(self.standard_errors.get(n, 0)) for n in pcs):
+            notes.append("not determined by these patterns: the start's own uncertainty applies")
+        elif any(not np.isfinite(self.standard_errors.get(n, 0)) for n in self.parameter_names):
             notes.append("tilt and sample_tilt: only their difference is determined")
         if self.adequacy:
             notes.append(self.adequacy["verdict"])
