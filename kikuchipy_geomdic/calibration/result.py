@@ -73,9 +73,9 @@ class GeometryRefinementResult:
         eliminated, ``orientation_prior`` included) and the measured
         residual scatter. ``inf`` for tilt and sample_tilt when both are
         refined: only their difference is determined; ``inf`` for every
-        parameter when the DIC stage's features did not match
-        (:data:`~kikuchipy_geomdic.calibration._dic_stage.UNMATCHED_RMS_PX`)
-        and no full field ran: the patterns do not determine the geometry.
+        parameter when the DIC stage's features did not match (an RMS
+        displacement above 4 px at the end) and no full field ran: the
+        patterns do not determine the geometry.
     undetermined
         Parameters the map determines only poorly (standard error above
         :data:`~kikuchipy_geomdic.calibration.uncertainty.DETERMINACY_LIMITS`;
