@@ -72,11 +72,25 @@ def _lobe(signal: EBSD) -> np.ndarray | None:
 
 
 def _gaussian_matrix(n: int, sigma: float) -> np.ndarray:
-    """The (n, n) matrix of a 1D Gaussian filter of *sigma* px with
-    edge-replicating borders (scipy's ``mode="nearest"``)."""
+    """The (n, n) matrix of kikuchipy's dynamic background along one axis:
+    a Gaussian of *sigma* px with edge-replicating borders, centred half a
+    pixel before each pixel where kikuchipy's window (``int(4 * sigma)``
+    px, ``truncate=4``) has an even width, as its frequency-domain filter
+    does (the half pixel measured from it; centred, the EMsoft-data map of
+    seed 2 calibrated with ebsdsim's master pattern ended 1.7e-4 off,
+    half a pixel before, 1.2e-4). The window's cut at two sigma is left
+    out: the matrix then kept 94 of 96 singular values (13 without), and
+    it was no closer to the truth."""
     if sigma <= 0:
         return np.eye(n)
-    return ndimage.gaussian_filter1d(np.eye(n), sigma, axis=0, mode="nearest")
+    shift = -0.5 if int(4 * sigma) % 2 == 0 else 0.0
+    reach = int(np.ceil(4 * sigma)) + 1
+    k = np.arange(-reach, n + reach)
+    w = np.exp(-0.5 * ((k[None, :] - np.arange(n)[:, None] - shift) / sigma) ** 2)
+    w /= w.sum(axis=1, keepdims=True)
+    a = np.zeros((n, n))
+    np.add.at(a, (np.arange(n)[:, None], np.clip(k, 0, n - 1)[None, :]), w)
+    return a
 
 
 @functools.lru_cache(maxsize=16)
