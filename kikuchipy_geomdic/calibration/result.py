@@ -202,7 +202,9 @@ class GeometryRefinementResult:
                 own = TILT_DIFFERENCE if name in ("tilt", "sample_tilt") else name
                 none = np.isinf(self.standard_errors.get(own, 0))
                 line += "  not determined" if none else "  poorly determined"
-                line += ", kept" if a == b else ""
+                # Kept: back at the start to round-off (a held difference
+                # of tilt and sample_tilt is split in two again)
+                line += ", kept" if abs(a - b) <= 1e-9 * max(1.0, abs(a)) else ""
             lines.append(line)
         pcs = [n for n in self.parameter_names if n.startswith("pc")]
         if pcs and all(np.isinf(self.standard_errors.get(n, 0)) for n in pcs):
