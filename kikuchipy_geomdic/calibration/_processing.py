@@ -78,7 +78,7 @@ def _gaussian_matrix(n: int, sigma: float) -> np.ndarray:
     px, ``truncate=4``) has an even width, as its frequency-domain filter
     does (the half pixel measured from it; centred, the EMsoft-data map of
     seed 2 calibrated with ebsdsim's master pattern ended 1.7e-4 off,
-    half a pixel before, 1.2e-4). The window's cut at two sigma is left
+    half a pixel before, 1.25e-4). The window's cut at two sigma is left
     out: the matrix then kept 94 of 96 singular values (13 without), and
     it was no closer to the truth."""
     if sigma <= 0:
