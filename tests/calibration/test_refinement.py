@@ -321,6 +321,15 @@ def test_full_field_skipped_when_dic_leaves_the_pc_undetermined(si_mp):
     for name in ("pcx", "pcy", "pcz"):
         assert np.isinf(res.standard_errors[name]) and name in res.undetermined
     assert "not determined by these patterns" in res.table(sm.geometry)
+    # ... and kept at the start, which its error against the truth is
+    start_pc = np.array(sm.start_geometry.pc)
+    np.testing.assert_allclose(res.geometry.pc, start_pc, atol=1e-12)
+    err, _ = _errors(res, sm)
+    np.testing.assert_allclose(
+        [err[k] for k in ("pcx", "pcy", "pcz")],
+        start_pc - np.array(sm.geometry.pc),
+        atol=1e-12,
+    )
 
 
 def _problem(sm, points):
