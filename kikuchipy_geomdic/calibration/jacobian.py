@@ -369,6 +369,11 @@ def intensity_jacobian(
 
     def column(name, step):
         rot, dpc = parameter_derivatives(geometry, pts, name, step)
-        return j_rot @ rot + (j_pc @ dpc[..., None])[..., 0]
+        return np.concatenate(np.broadcast_arrays(rot, dpc), axis=-1)
 
-    return simulated, _assemble(names, steps, column, axis=-1), j_rot
+    # The chain rule for all columns at once, (N, P, 6) @ (N, 6, K): column
+    # by column and stacked on the last axis, the strided copy alone took
+    # longer than the products
+    chain = _assemble(names, steps, column, axis=-1)
+    j_geo = j_rot @ chain[:, :3] + j_pc @ chain[:, 3:]
+    return simulated, j_geo, j_rot

@@ -87,8 +87,17 @@ def roi_edges(
     >>> roi_edges((10, 12), (3, 4))
     (array([ 0,  3,  7, 10]), array([ 0,  3,  6,  9, 12]))
     """
-    shape, rois = _check_grid(shape, rois)
-    return tuple(np.round(np.linspace(0, s, n + 1)).astype(np.int64) for s, n in zip(shape, rois))
+    return _edges(*_check_grid(shape, rois))
+
+
+@functools.lru_cache(maxsize=32)
+def _edges(shape, rois):
+    # Cached, read-only: asked for by every pattern's vectors, the same grid
+    # cost more than the lookups made with it
+    edges = tuple(np.round(np.linspace(0, s, n + 1)).astype(np.int64) for s, n in zip(shape, rois))
+    for e in edges:
+        e.flags.writeable = False
+    return edges
 
 
 def roi_centres(shape: tuple[int, int], rois: tuple[int, int] = (8, 8)) -> np.ndarray:
