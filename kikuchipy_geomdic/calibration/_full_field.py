@@ -23,7 +23,7 @@ from kikuchipy_geomdic.calibration._dic_fit import _expand, _prior_per_axis, _so
 from kikuchipy_geomdic.calibration._problem import _LoopOutcome, _Problem, _step_record
 from kikuchipy_geomdic.calibration._processing import _estimate_processing
 from kikuchipy_geomdic.calibration._progress import _Progress
-from kikuchipy_geomdic.calibration.jacobian import INTENSITY_STEPS, intensity_jacobian
+from kikuchipy_geomdic.calibration.jacobian import INTENSITY_STEPS, _intensity_chain
 from kikuchipy_geomdic.calibration.solve import JointSystem, solve_joint
 from kikuchipy_geomdic.calibration.uncertainty import (
     _PC,
@@ -221,11 +221,13 @@ def _intensity_system(problem, arrays, geometry, rotations, solved, processing, 
     n = len(problem.points)
     e = problem.experimental.reshape(n, -1).astype(np.float64)
     if jacobians:
-        s0, jg, jr = intensity_jacobian(
+        s0, j_rot, j_pc, chain = _intensity_chain(
             geometry, problem.points, rotations, arrays, solved, INTENSITY_STEPS
         )
-        k = jg.shape[2]
-        s0, planes = processing(s0, (jg, jr))
+        # The six columns processed, the geometry's made of them after:
+        # the processing is linear, and six are fewer than K + 3
+        s0, six = processing(s0, (j_rot, j_pc))
+        geo = np.swapaxes(chain, 1, 2).astype(np.float32) @ six
     else:
         s0 = processing(problem.simulate(geometry, rotations).reshape(n, -1))[0]
     # Gain and offset of each pattern, then projected out of every column:
@@ -241,8 +243,8 @@ def _intensity_system(problem, arrays, geometry, rotations, solved, processing, 
     residual = _project_out(e[:, None], unit, -np.ones(n))[..., 0]
     jg = jr = None
     if jacobians:
-        jg = _project_out(planes[:, :k], unit, gain)
-        jr = _project_out(planes[:, k:], unit, gain)
+        jg = _project_out(geo, unit, gain)
+        jr = _project_out(six[:, :3], unit, gain)
     return residual, jg, jr, _pixel_variances(residual, e + residual)
 
 

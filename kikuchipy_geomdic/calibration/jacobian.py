@@ -353,6 +353,23 @@ def intensity_jacobian(
     >>> s.shape, jg.shape, jr.shape
     ((2, 1600), (2, 1600, 2), (2, 1600, 3))
     """
+    simulated, j_rot, j_pc, chain = _intensity_chain(
+        geometry, points, rotations, arrays, names, steps
+    )
+    # (N, P, 6) @ (N, 6, K), all columns at once: column by column and
+    # stacked on the last axis, the strided copy took longer than the
+    # products
+    j_geo = j_rot @ chain[:, :3] + j_pc @ chain[:, 3:]
+    return simulated, j_geo, j_rot
+
+
+def _intensity_chain(geometry, points, rotations, arrays, names, steps):
+    """The parts of :func:`intensity_jacobian`: the simulated patterns
+    (N, P), their derivatives by rotation (N, P, 3) and by the pattern's
+    own PC (N, P, 3), and the chain matrices (N, 6, K) that make the
+    geometry's columns of them, ``[j_rot, j_pc] @ chain``. The full field
+    processes the six columns and applies the chain after: the processing
+    is linear in the columns, and six are fewer than K + 3."""
     from orix.quaternion import Rotation
 
     from kikuchipy_geomdic.indexing.orientation import detector_matrix, project_derivatives
@@ -371,9 +388,4 @@ def intensity_jacobian(
         rot, dpc = parameter_derivatives(geometry, pts, name, step)
         return np.concatenate(np.broadcast_arrays(rot, dpc), axis=-1)
 
-    # The chain rule for all columns at once, (N, P, 6) @ (N, 6, K): column
-    # by column and stacked on the last axis, the strided copy alone took
-    # longer than the products
-    chain = _assemble(names, steps, column, axis=-1)
-    j_geo = j_rot @ chain[:, :3] + j_pc @ chain[:, 3:]
-    return simulated, j_geo, j_rot
+    return simulated, j_rot, j_pc, _assemble(names, steps, column, axis=-1)
