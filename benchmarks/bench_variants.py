@@ -471,13 +471,11 @@ def _dictionary_fallback(sm, out, ops, resolution):
     # The pseudo-cubic parent's zone: every variant is one of the operators
     # away from a dictionary entry, and the reindex tries them all
     rot = get_sample_fundamental(resolution=resolution, point_group=Oh)
-    with _quiet():
+    with _quiet(), contextlib.redirect_stderr(io.StringIO()):
         sim = sm.master_pattern.get_patterns(
             rot, dict_det, sm.energy, compute=False, dtype_out=np.float32
         )
-        di = kp.signals.EBSD(binned.astype(np.float32)).dictionary_indexing(
-            sim, keep_n=1, show_progressbar=False
-        )
+        di = kp.signals.EBSD(binned.astype(np.float32)).dictionary_indexing(sim, keep_n=1)
     t_di = time.perf_counter() - t0
     start = sm.start_xmap
     q = start.rotations.data.reshape(-1, 4).copy()
