@@ -216,24 +216,30 @@ class _Processing:
         static background removal and, with a contrast and a high-pass,
         the low-pass and the pattern divided by it (else None)."""
         axes = (2, 3)
+        # In place on one copy where a step's input is not kept: the
+        # estimation passes 17 stacks through here, and their temporaries
+        # were most of its time
         x = x - x.mean(axis=axes, keepdims=True)
         sd = np.sqrt((x**2).mean(axis=axes, keepdims=True))
-        x = x / sd
-        xs = x.astype(np.float32)
+        x /= sd
+        xs = x.astype(np.float32, copy=False)
         lobe = 1.0 if self.lobe is None else self.lobe.astype(x.dtype)
         c = self.contrast
         low = None
         if c:
             # Step 1 and 2 in counts; 3: the static background divided out,
             # if it was
-            raw = lobe * (1 + c * x)
+            raw = x * c
+            raw += 1
+            raw *= lobe
             den = np.ones((1, 1) + self.shape)
             if self.static:
                 den = self._blur(den * (raw.mean(axis=0, keepdims=True) if self.ghost else lobe))
-            x = self._blur(raw) / den
+            x = self._blur(raw)
+            x /= den
             if self.highpass:
                 low = self._lowpass(x)
-                x = x / low
+                x /= low
         else:
             # The faint-pattern limit of the same: the background's blur
             # divided out of the blurred modulation, the ghost subtracted
