@@ -404,6 +404,8 @@ class JointSystem:
     a_inv: np.ndarray
     a_inv_b: np.ndarray
     bb: np.ndarray
+    c: np.ndarray
+    a0: np.ndarray
     s_red: np.ndarray
     full: np.ndarray
     mu: np.ndarray
@@ -453,7 +455,8 @@ class JointSystem:
         # pixels of a full-field system took most of its time
         jgw_t = np.swapaxes(jg * w[..., None], 1, 2)
         jrw_t = np.swapaxes(jr * w[..., None], 1, 2)
-        a = jrw_t @ jr + p * np.eye(3)
+        a0 = jrw_t @ jr
+        a = a0 + p * np.eye(3)
         bb = jrw_t @ jg
         c = jgw_t @ jg
         # Patterns without vectors and no prior have a singular 3 x 3
@@ -483,6 +486,8 @@ class JointSystem:
             a_inv=a_inv,
             a_inv_b=a_inv_b,
             bb=bb,
+            c=c,
+            a0=a0,
             s_red=s_red,
             full=full,
             mu=mu,
@@ -517,7 +522,8 @@ class JointSystem:
             raise ValueError("Jacobians, residual and weights must be finite, weights >= 0")
         n = jg.shape[0]
         w0 = np.zeros((n, 3)) if offsets is None else np.asarray(offsets, dtype=np.float64)
-        ar = (self.jrw_t @ b[..., None])[..., 0] + self.prior_precision * w0
+        ar0 = (self.jrw_t @ b[..., None])[..., 0]
+        ar = ar0 + self.prior_precision * w0
         ag = (self.jgw_t @ b[..., None])[..., 0]
         a_inv_r = np.einsum("nij,nj->ni", self.a_inv, ar)
         g_red = (ag - np.einsum("nki,nk->ni", self.bb, a_inv_r)).sum(axis=0)
@@ -531,17 +537,29 @@ class JointSystem:
             null = null / np.linalg.norm(null, axis=0)
         dw = -(a_inv_r + self.a_inv_b @ delta)
 
-        r_after = b + jg @ delta + (jr @ dw[..., None])[..., 0]
-        chi2 = float((w * b**2).sum())
-        chi2_after = float((w * r_after**2).sum())
+        # The residual after the step, its chi2 and the patterns' scores
+        # from the normal equations' blocks: three passes over the
+        # Jacobians fewer
+        chi2 = float(np.einsum("nm,nm,nm->", w, b, b))
+        scores = ag + self.c @ delta + np.einsum("nrk,nr->nk", self.bb, dw)
+        chi2_after = chi2 + float(
+            2 * (ag @ delta).sum()
+            + 2 * np.einsum("nr,nr->", ar0, dw)
+            + delta @ self.c.sum(axis=0) @ delta
+            + 2 * np.einsum("nr,nrk,k->", dw, self.bb, delta)
+            + np.einsum("nr,nrs,ns->", dw, self.a0, dw)
+        )
+        if not chi2_after > 1e-6 * chi2:
+            # Expanded, a chi2 that nearly vanishes is lost to round-off
+            r_after = b + jg @ delta + (jr @ dw[..., None])[..., 0]
+            chi2_after = float(np.einsum("nm,nm,nm->", w, r_after, r_after))
+            scores = (self.jgw_t @ r_after[..., None])[..., 0]
         n_obs = int((w > 0).sum())
         dof = max(n_obs - self.n_rot - int(keep.sum()), 1)
         factor = chi2_after / dof
         s_inv = cov_scaled / np.outer(full, full)
         model = factor * s_inv
-        cov = _with_pattern_correlations(
-            model, s_inv, (self.jgw_t @ r_after[..., None])[..., 0], int(keep.sum())
-        )
+        cov = _with_pattern_correlations(model, s_inv, scores, int(keep.sum()))
         # Rotation errors given the geometry (the geometry's own error adds
         # a common part, see covariance)
         rot_sigma = np.sqrt(factor * np.clip(np.diagonal(self.a_inv, axis1=1, axis2=2), 0, None))
