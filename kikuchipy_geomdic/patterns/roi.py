@@ -87,13 +87,13 @@ def roi_edges(
     >>> roi_edges((10, 12), (3, 4))
     (array([ 0,  3,  7, 10]), array([ 0,  3,  6,  9, 12]))
     """
-    return _edges(*_check_grid(shape, rois))
+    return tuple(e.copy() for e in _edges(*_check_grid(shape, rois)))
 
 
 @functools.lru_cache(maxsize=32)
 def _edges(shape, rois):
     # Cached, read-only: asked for by every pattern's vectors, the same grid
-    # cost more than the lookups made with it
+    # cost more than the lookups made with it; the public roi_edges copies
     edges = tuple(np.round(np.linspace(0, s, n + 1)).astype(np.int64) for s, n in zip(shape, rois))
     for e in edges:
         e.flags.writeable = False
@@ -124,7 +124,7 @@ def roi_centres(shape: tuple[int, int], rois: tuple[int, int] = (8, 8)) -> np.nd
     array([[1. , 1.5],
            [4. , 1.5]])
     """
-    row_edges, col_edges = roi_edges(shape, rois)
+    row_edges, col_edges = _edges(*_check_grid(shape, rois))
     yc = (row_edges[:-1] + row_edges[1:] - 1) / 2
     xc = (col_edges[:-1] + col_edges[1:] - 1) / 2
     y, x = np.meshgrid(yc, xc, indexing="ij")
@@ -156,7 +156,7 @@ def roi_index(
     >>> roi_index([0, 5.4, 5.6, 11.4, 12], [0, 0, 0, 9, 0], (10, 12), (2, 2))
     array([ 0,  0,  1,  3, -1])
     """
-    row_edges, col_edges = roi_edges(shape, rois)
+    row_edges, col_edges = _edges(*_check_grid(shape, rois))
     x, y = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float))
     with np.errstate(invalid="ignore"):
         col = np.floor(x + 0.5)
@@ -182,7 +182,7 @@ def _tracking_labels(shape, rois, binning, tracked_shape, margin):
     tuple. Cached: every pattern of a map has the same (built per pattern,
     they were a tenth of the DIC measurement's cost).
     """
-    row_edges, col_edges = roi_edges(shape, rois)
+    row_edges, col_edges = _edges(*_check_grid(shape, rois))
     lab = []
     for size, edges in zip(tracked_shape, (row_edges, col_edges)):
         centre = np.arange(size) * binning + (binning - 1) / 2

@@ -1,7 +1,12 @@
 import numpy as np
 import pytest
 
-from kikuchipy_geomdic.calibration.solve import coupling_matrix, solve_joint, solve_update
+from kikuchipy_geomdic.calibration.solve import (
+    JointSystem,
+    coupling_matrix,
+    solve_joint,
+    solve_update,
+)
 
 
 def _problem(seed=0, r=32, k=4):
@@ -137,6 +142,30 @@ class TestJoint:
         dp, dw, _ = self._dense(jg, jr, b, w, prior=0.3, offsets=off)
         np.testing.assert_allclose(u.delta, dp, atol=1e-10)
         np.testing.assert_allclose(u.rotations, dw, atol=1e-10)
+
+    @pytest.mark.parametrize("exact", [False, True])
+    def test_chi2_after_and_scores_equal_the_residuals(self, exact):
+        # solve takes them from the normal equations' blocks; a residual the
+        # step removes entirely (exact) takes the fallback to the residual
+        jg, jr, b, w = self._system(n=8, m=40, k=3, seed=6)
+        rng = np.random.default_rng(7)
+        if exact:
+            b = -(jg @ rng.normal(size=3) + (jr @ rng.normal(size=(8, 3, 1)))[..., 0])
+        off = None if exact else rng.normal(size=(8, 3)) * 0.05
+        u = JointSystem.build(jg, jr, w, None if exact else 0.3).solve(b, off)
+        assert (u.predicted_chi2 < 1e-20 * u.chi2) == exact
+        r = b + jg @ u.delta + (jr @ u.rotations[..., None])[..., 0]
+        direct = float((w * r**2).sum())
+        assert u.predicted_chi2 == pytest.approx(direct, rel=1e-9, abs=1e-20)
+        assert u.chi2 == pytest.approx(float((w * b**2).sum()), rel=1e-12)
+        # The covariance's cluster-robust part is made of the scores
+        scores = np.swapaxes(jg * w[..., None], 1, 2) @ r[..., None]
+        s_inv = u.model_covariance / u.variance_factor
+        robust = s_inv @ (scores[..., 0].T @ scores[..., 0]) @ s_inv * 8 / 5
+        d = robust - u.model_covariance
+        mu, v = np.linalg.eigh((d + d.T) / 2)
+        expected = u.model_covariance + (v * np.clip(mu, 0, None)) @ v.T
+        np.testing.assert_allclose(u.covariance, expected, rtol=1e-8, atol=1e-15)
 
     def test_common_rotation_pinned_only_by_prior(self):
         # A geometry column that equals a rotation common to every pattern
