@@ -286,36 +286,33 @@ def run_start(name, args, mp, side, out_dir, suffix):
         f"point(s) > {OFF:g} deg off",
         flush=True,
     )
+    configs = dict(
+        methods=args.methods,
+        refine_kwargs=dict(dic_kwargs=_dic_kwargs(args)),
+        dic_configs={
+            "dic-paper": dict(solver="paper", dic_kwargs=_dic_kwargs(args)),
+            "dic-only": dict(full_field=False, dic_kwargs=_dic_kwargs(args)),
+        },
+        scheduler="synchronous",
+    )
     # Every method once on a few points first, untimed: the first call in
     # a process loads numba's caches, OpenCV and the master pattern's
     # arrays (0.3-0.6 s for the defaults), which no later call pays
     comparison.compare_methods(
         sm,
         points=4,
-        methods=args.methods,
         method_points={"differential-evolution": 2},
-        refine_kwargs=dict(dic_kwargs=_dic_kwargs(args)),
-        dic_configs={
-            "dic-paper": dict(solver="paper", dic_kwargs=_dic_kwargs(args)),
-            "dic-only": dict(full_field=False, dic_kwargs=_dic_kwargs(args)),
-        },
         de_kwargs=dict(seed=0, maxiter=2),
-        scheduler="synchronous",
+        **configs,
     )
     with _Recorder() as rec:
         rows = comparison.compare_methods(
             sm,
             points=side * side,
-            methods=args.methods,
             method_points={"differential-evolution": args.de_points},
-            refine_kwargs=dict(dic_kwargs=_dic_kwargs(args)),
-            dic_configs={
-                "dic-paper": dict(solver="paper", dic_kwargs=_dic_kwargs(args)),
-                "dic-only": dict(full_field=False, dic_kwargs=_dic_kwargs(args)),
-            },
             de_kwargs=dict(seed=0, maxiter=args.de_maxiter),
-            scheduler="synchronous",
             verbose=True,
+            **configs,
         )
     if len(rec.records) != len(rows):
         raise RuntimeError(f"{len(rec.records)} rotation records for {len(rows)} methods")
