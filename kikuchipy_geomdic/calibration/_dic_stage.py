@@ -84,19 +84,24 @@ MIN_FALL = 0.1
 UNMATCHED_RMS_PX = 4.0
 
 
-def _check_matched(outcome: _LoopOutcome) -> tuple[_LoopOutcome, bool]:
+def _check_matched(
+    outcome: _LoopOutcome, explain: Callable[[], str] | None = None
+) -> tuple[_LoopOutcome, bool]:
     """*outcome*, not converged and with a warning, if its last field's RMS
     displacement is above :data:`UNMATCHED_RMS_PX`; and whether it is
-    below (the features matched)."""
+    below (the features matched). *explain*, called only then, may add
+    the cause to the warning."""
     field = outcome.state.field
     rms = _rms_displacement(field) * field.shape[1]
     if not rms > UNMATCHED_RMS_PX:
         return outcome, True
+    cause = explain() if explain is not None else ""
     warnings.warn(
         f"The DIC stage ended with an RMS displacement of {rms:.1f} px (above "
         f"{UNMATCHED_RMS_PX:g} px): the simulated and the recorded features "
         "did not match (patterns too noisy for DIC, or orientations or variants far off), so "
-        "the geometry is not determined by them; the result is marked not converged",
+        "the geometry is not determined by them; the result is marked not converged"
+        + (f". {cause}" if cause else ""),
         UserWarning,
         stacklevel=3,
     )

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -46,7 +47,8 @@ from kikuchipy_geomdic.calibration._checks import _check_inputs, _step_sizes
 from kikuchipy_geomdic.calibration._dic_stage import _check_matched, _dic_stage
 from kikuchipy_geomdic.calibration._full_field import FULL_FIELD_BASIN, _full_field_stage
 from kikuchipy_geomdic.calibration._points import calibration_points
-from kikuchipy_geomdic.calibration._problem import _binning, _prepare_problem
+from kikuchipy_geomdic.calibration._problem import _binning, _prepare_problem, _State
+from kikuchipy_geomdic.calibration._processing import _bands_divided_out, _static_background
 from kikuchipy_geomdic.calibration._progress import _Progress, _show_progressbar
 from kikuchipy_geomdic.calibration.result import (
     GeometryRefinementResult,
@@ -336,11 +338,20 @@ def refine_geometry_dic(
         outcome, standard_errors, adequacy = _full_field_stage(
             problem, outcome, dic_stage, orientation_prior, full_field, guarded, binning, progress
         )
-    outcome, matched = _check_matched(outcome)
+    outcome, matched = _check_matched(
+        outcome, functools.partial(_static_background_note, signal, problem, geometry0)
+    )
     if not matched and not adequacy:
-        # Standard errors from fields of unmatched features measure the
-        # noise's matches, not the geometry (BaTiO3 domain map at 30
-        # counts/px, users' start kept: pcz 1.8e-2 off at 4.0 of them)
+        # Steps on fields of unmatched features follow the noise's matches,
+        # so the result is the start, whose own uncertainty applies (Si,
+        # one crystal, 30 counts/px with the map's mean divided out: one
+        # such step took pcy from 1.2e-2 to 3.7e-2 off). Standard errors
+        # from such fields measure the noise's matches, not the geometry
+        # (BaTiO3 domain map at 30 counts/px, users' start kept: pcz 1.8e-2
+        # off at 4.0 of them)
+        outcome = replace(
+            outcome, state=_State.measure(problem, geometry0, problem.start_rotations)
+        )
         solved, _ = solved_parameters(names)
         standard_errors = _named_errors(names, np.full(len(solved), np.inf))
     rotations, scores = _final_orientations(problem, outcome.state, solver, refine_kwargs)
@@ -357,4 +368,32 @@ def refine_geometry_dic(
         solver,
         standard_errors,
         adequacy,
+    )
+
+
+def _static_background_note(signal, problem, geometry) -> str:
+    """Why the DIC features did not match, if the signal's static
+    background is the cause (:func:`_bands_divided_out`, judged at
+    *geometry* and the start's orientations), and what to do; else an
+    empty string. Measured on 13 x 13 BaTiO3 domain maps of one
+    crystal at 30 counts/px from users' starts: with the map's mean
+    divided out the PC stayed 1.8e-2 off; with only the dynamic background
+    removed it ended within 1.5e-3 and every c axis was right after
+    reindexing."""
+    bg = _static_background(signal)
+    if bg is None:
+        return ""
+    sim = problem.simulate(geometry, problem.start_rotations)
+    found = _bands_divided_out(bg, problem.experimental, sim)
+    if found is None:
+        return ""
+    held, kept = found
+    return (
+        "The signal's static background holds these patterns' Kikuchi bands: it correlates "
+        f"{held:.2f} on average with each pattern's simulation, the patterns themselves "
+        f"{kept:.2f}, and the map's mean pattern was divided out of them. On a map of one "
+        "crystal (or of few grains) that removes the bands that place the geometry. Calibrate "
+        "on patterns with only the dynamic background removed "
+        "(EBSD.remove_dynamic_background on the raw patterns), or divided by a static "
+        "background recorded elsewhere"
     )

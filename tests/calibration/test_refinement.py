@@ -12,6 +12,7 @@ width across the map). Two kinds of start:
 """
 
 import sys
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -330,6 +331,33 @@ def test_full_field_skipped_when_dic_leaves_the_pc_undetermined(si_mp):
         start_pc - np.array(sm.geometry.pc),
         atol=1e-12,
     )
+
+
+def test_unmatched_features_leave_the_start_and_name_the_static_background(si_mp):
+    # One crystal at 30 counts/px with the map's mean divided out: the
+    # bands are in the static background, the DIC features do not match,
+    # and a step on their fields took pcy from 1.2e-2 to 3.7e-2 off. The
+    # result is the start, not converged, with no standard error, and the
+    # warning names the static background as the cause
+    sm = synthetic.synthetic_map(
+        si_mp, (5, 5), orientations="single", shape=(96, 96), seed=0,
+        camera=Camera(dose=30), start="indexed", orientation_error=1.0,
+    )  # fmt: skip
+    with pytest.warns(UserWarning, match="static background holds these patterns' Kikuchi"):
+        res = _refine(sm, points=25)
+    assert not res.converged
+    np.testing.assert_allclose(res.geometry.pc, sm.start_geometry.pc, atol=1e-12)
+    assert all(np.isinf(res.standard_errors[k]) for k in ("pcx", "pcy", "pcz"))
+    # The same map with only the dynamic background removed does not
+    # blame the static background
+    sm = synthetic.synthetic_map(
+        si_mp, (5, 5), orientations="single", shape=(96, 96), seed=0,
+        camera=Camera(dose=30, static=False), start="indexed", orientation_error=1.0,
+    )  # fmt: skip
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        _refine(sm, points=25)
+    assert not any("static background holds" in str(w.message) for w in caught)
 
 
 def _problem(sm, points):
