@@ -307,6 +307,10 @@ DETECTOR_ERRORS = (
     ("azimuthal +2", "azimuthal", 2.0),
     ("tilt +1", "tilt", 1.0),
     ("tilt +2", "tilt", 2.0),
+    # The PC off as far as a calibration on one pattern leaves it
+    ("pc +1e-3", "pc", (1e-3, -1e-3, 1e-3)),
+    ("pc +3e-3", "pc", (2.5e-3, 2e-3, 4e-3)),
+    ("pc -3e-3", "pc", (-2.5e-3, -2e-3, 3e-3)),
 )
 
 
@@ -374,7 +378,7 @@ def users(args) -> None:
             cases = [
                 (name, _detector_off(sm.detector, p, a), "geomdic", sm.start_xmap)
                 for name, p, a in DETECTOR_ERRORS
-                if args.detectors is None or name in args.detectors
+                if (p != "pc" if args.detectors is None else name in args.detectors)
             ]
             if args.oracle:
                 cases.append(("true, from truth", sm.detector, "geomdic", sm.xmap))
@@ -502,11 +506,14 @@ def _dictionary_fallback(sm, out, ops, resolution):
     return merged, int(flagged.sum()), t_di
 
 
-def _detector_off(detector, parameter, angle):
-    """*detector* with *parameter* off by *angle* degrees (itself if None)."""
+def _detector_off(detector, parameter, change):
+    """*detector* with *parameter* off by *change* (degrees, or (3,) for
+    the PC; itself if None)."""
     if parameter is None:
         return detector
-    return copy_detector(detector, **{parameter: getattr(detector, parameter) + angle})
+    return copy_detector(
+        detector, **{parameter: getattr(detector, parameter) + np.asarray(change)}
+    )
 
 
 def _users_scores(out, sm, method) -> tuple:
@@ -554,7 +561,9 @@ def main(argv=None) -> None:
         help="users: calibrated with the operators from the start, then reindexed there",
     )  # fmt: skip
     p.add_argument(
-        "--detectors", nargs="+", help="users: names of DETECTOR_ERRORS to run (default all)"
+        "--detectors",
+        nargs="+",
+        help="users: names of DETECTOR_ERRORS to run (default all but the PC's)",
     )
     p.add_argument(
         "--dictionary", action="store_true",
