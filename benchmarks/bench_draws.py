@@ -36,11 +36,9 @@ error above 1).
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import sys
 import time
-import warnings
+from pathlib import Path
 
 import numpy as np
 
@@ -50,15 +48,11 @@ from kikuchipy_geomdic.indexing.variants import variant_operators
 from kikuchipy_geomdic.patterns.simulation import simulate_patterns
 from kikuchipy_geomdic.validation.camera import Camera, camera_counts
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_realistic import realistic_map  # noqa: E402
+from bench_variants import _quiet  # noqa: E402
+
 _PC = ("pcx", "pcy", "pcz")
-
-
-def _quiet():
-    stack = contextlib.ExitStack()
-    stack.enter_context(contextlib.redirect_stdout(io.StringIO()))
-    stack.enter_context(warnings.catch_warnings())
-    warnings.simplefilter("ignore")
-    return stack
 
 
 def _map(name, seed, dose, static):
@@ -81,9 +75,6 @@ def _map(name, seed, dose, static):
                     orientation_error=1.0,
                 )  # fmt: skip
             else:
-                sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
-                from bench_realistic import realistic_map
-
                 sm = realistic_map(name, seed)
     finally:
         synthetic._signal = record
