@@ -378,7 +378,7 @@ def _static_background_note(signal, problem, geometry) -> str:
     empty string. Measured on 13 x 13 BaTiO3 domain maps of one
     crystal at 30 counts/px from users' starts: with the map's mean
     divided out the PC stayed 1.8e-2 off; with only the dynamic background
-    removed it ended within 1.5e-3 and every c axis was right after
+    removed it ended within 1.6e-3 and every c axis was right after
     reindexing."""
     bg = _static_background(signal)
     if bg is None:
