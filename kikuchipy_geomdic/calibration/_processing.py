@@ -110,18 +110,20 @@ def _bands_divided_out(
     against 0.32-0.55).
 
     Returns the two mean correlations (the background's, the patterns')
-    if so, else None. Each is of the patterns high-passed as kikuchipy's
-    dynamic background removal (a Gaussian of an eighth of the width),
-    the background divided by its lobe (:func:`_fit_lobe`) first."""
+    if so, else None. Each is of the patterns high-passed by the model of
+    kikuchipy's dynamic background removal (:meth:`_Processing._lowpass`,
+    an eighth of the width), the background divided by its lobe
+    (:func:`_fit_lobe`) first."""
+
+    shape = static_background.shape
+    highpass = _Processing(shape, highpass=shape[1] / 8)
 
     def flat(a):
         # High-passed, then standardised: correlations are means of products
         a = np.asarray(a, dtype=np.float64)
-        sigma = (0,) * (a.ndim - 2) + (a.shape[-1] / 8,) * 2
-        a = a - ndimage.gaussian_filter(a, sigma, mode="nearest")
+        a = a - highpass._lowpass(a)
         return ori.standardise(a.reshape(a.shape[:-2] + (-1,)))
 
-    shape = static_background.shape
     bands = static_background / _fit_lobe(static_background)
     e, s = flat(experimental), flat(simulated)
     means = flat(np.stack([e.mean(axis=0), s.mean(axis=0)]).reshape((2,) + shape))
