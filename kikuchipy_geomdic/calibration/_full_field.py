@@ -213,6 +213,22 @@ def _project_out(a, unit, scale):
     return out
 
 
+def _model(problem, arrays, geometry, rotations, solved, processing, jacobians=True):
+    """The model patterns (N, P) made by *processing*, and with
+    *jacobians* their processed geometry (N, K, P) and rotation-and-PC
+    (N, 6, P) derivative planes (else None, None)."""
+    n = len(problem.points)
+    if not jacobians:
+        return processing(problem.simulate(geometry, rotations).reshape(n, -1))[0], None, None
+    s0, j_rot, j_pc, chain = _intensity_chain(
+        geometry, problem.points, rotations, arrays, solved, INTENSITY_STEPS
+    )
+    # The six columns processed, the geometry's made of them after: the
+    # processing is linear, and six are fewer than K + 3
+    s0, six = processing(s0, (j_rot, j_pc))
+    return s0, np.swapaxes(chain, 1, 2).astype(np.float32) @ six, six
+
+
 def _intensity_system(problem, arrays, geometry, rotations, solved, processing, jacobians=True):
     """Residuals (N, P), geometry and rotation Jacobians with each
     pattern's gain and offset eliminated, and the pixel noise variances
@@ -220,16 +236,7 @@ def _intensity_system(problem, arrays, geometry, rotations, solved, processing, 
     residuals (the Jacobians None)."""
     n = len(problem.points)
     e = problem.experimental.reshape(n, -1).astype(np.float64)
-    if jacobians:
-        s0, j_rot, j_pc, chain = _intensity_chain(
-            geometry, problem.points, rotations, arrays, solved, INTENSITY_STEPS
-        )
-        # The six columns processed, the geometry's made of them after:
-        # the processing is linear, and six are fewer than K + 3
-        s0, six = processing(s0, (j_rot, j_pc))
-        geo = np.swapaxes(chain, 1, 2).astype(np.float32) @ six
-    else:
-        s0 = processing(problem.simulate(geometry, rotations).reshape(n, -1))[0]
+    s0, geo, six = _model(problem, arrays, geometry, rotations, solved, processing, jacobians)
     # Gain and offset of each pattern, then projected out of every column:
     # exactly their elimination (variable projection). The two basis
     # vectors, the constant and the centred model, are orthogonal: the
