@@ -74,10 +74,6 @@ def test_wheel_holds_the_package_data(wheel):
         "kikuchipy_geomdic/data/BaTiO3_dynamical.npz",
         "kikuchipy_geomdic/data/Si.cif",
         "kikuchipy_geomdic/data/BaTiO3.cif",
-        "kikuchipy_geomdic/data/silicon_moving_screen/LICENSE",
-        "kikuchipy_geomdic/data/silicon_moving_screen/si_in.h5",
-        "kikuchipy_geomdic/data/silicon_moving_screen/si_out5mm.h5",
-        "kikuchipy_geomdic/data/silicon_moving_screen/si_out10mm.h5",
     ]
     missing = [n for n in data if n not in names]
     assert not missing, missing
@@ -90,6 +86,15 @@ def test_wheel_holds_the_package_data(wheel):
     for name in data:
         assert wheel.read(name) == (ROOT / name).read_bytes(), name
     assert not any(n.startswith(("tests/", "tutorials/", "docs/")) for n in names)
+
+
+def test_wheel_ships_no_third_party_patterns(wheel):
+    """kikuchipy's real silicon patterns (CC BY 4.0) are read through
+    ``kikuchipy.data``; neither they nor any other pattern file is shipped."""
+    names = wheel.namelist()
+    assert not [n for n in names if "silicon_moving_screen" in n], names
+    assert not [n for n in names if n.endswith((".h5", ".hdf5", ".h5ebsd"))], names
+    assert not (PACKAGE / "data" / "silicon_moving_screen").exists()
 
 
 def test_wheel_metadata(wheel):
