@@ -116,9 +116,12 @@ def _joint_solve(
     offsets: np.ndarray,
     prior: float | None,
     damping: float,
+    common: bool = False,
 ) -> tuple[JointUpdate, np.ndarray]:
     """One joint solve with the geometry *columns* of *linear*; also
-    returns the per-pattern variances it weighted with."""
+    returns the per-pattern variances it weighted with. *common*: the
+    rotation all patterns share is a global unknown and the *prior* holds
+    their scatter about it (the crystal model)."""
     jg, jr, b = linear
     jg = jg[..., list(columns)]
     # First without the prior, to learn each pattern's noise; then with
@@ -126,7 +129,10 @@ def _joint_solve(
     first = solve_joint(jg, jr, b, _pattern_weights(field, None), damping=damping)
     var = _pattern_variances(field, jg, jr, first)
     w = _pattern_weights(field, var)
-    return solve_joint(jg, jr, b, w, prior=prior, offsets=offsets, damping=damping), var
+    update = solve_joint(
+        jg, jr, b, w, prior=prior, offsets=offsets, damping=damping, common=common
+    )
+    return update, var
 
 
 def _prior_per_axis(prior: float | None) -> float | None:

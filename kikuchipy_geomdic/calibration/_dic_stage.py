@@ -264,7 +264,10 @@ def _joint_step(
     # Linearise and solve with every parameter: standard errors and steps
     offsets = problem.rotation_offsets(state.rotations)
     linear = _linearise(problem, state.geometry, state.field, solved)
-    update, var = _joint_solve(state.field, linear, range(len(solved)), offsets, prior_rad, 0.0)
+    common = problem.crystal is not None
+    update, var = _joint_solve(
+        state.field, linear, range(len(solved)), offsets, prior_rad, 0.0, common
+    )
     hold, weak, free, released = _choose_free(solved, update, carry)
     carry = replace(carry, hold=hold, standard_errors=dict(zip(solved, update.standard_errors)))
     # Settled, and no parameter has become determinable since
@@ -291,7 +294,7 @@ def _joint_step(
     ncc_before = float(np.mean(state.scores))
     records = []
     for _ in range(MAX_TRIALS):
-        update, _ = _joint_solve(state.field, linear, columns, offsets, prior_rad, lam)
+        update, _ = _joint_solve(state.field, linear, columns, offsets, prior_rad, lam, common)
         delta = _expand(dict(zip(free, update.delta)), split)
         trial = _State.measure(
             problem,
@@ -478,7 +481,9 @@ def _consistent(problem, geometry, field, free, offsets, prior) -> bool:
     RMS by 0.3 %), so such a step is judged by where it lands instead.
     """
     linear = _linearise(problem, geometry, field, free)
-    update, _ = _joint_solve(field, linear, range(len(free)), offsets, prior, 0.0)
+    update, _ = _joint_solve(
+        field, linear, range(len(free)), offsets, prior, 0.0, problem.crystal is not None
+    )
     se = np.where(np.isfinite(update.standard_errors), update.standard_errors, np.inf)
     return bool(np.all(np.abs(update.delta) < SIGNIFICANCE * se))
 

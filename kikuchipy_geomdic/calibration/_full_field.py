@@ -23,6 +23,7 @@ from kikuchipy_geomdic.calibration._dic_fit import _expand, _prior_per_axis, _so
 from kikuchipy_geomdic.calibration._problem import _LoopOutcome, _Problem, _step_record
 from kikuchipy_geomdic.calibration._processing import _estimate_processing
 from kikuchipy_geomdic.calibration._progress import _Progress
+from kikuchipy_geomdic.calibration._systematic import _region_errors
 from kikuchipy_geomdic.calibration.jacobian import INTENSITY_STEPS, _intensity_chain
 from kikuchipy_geomdic.calibration.solve import JointSystem, solve_joint
 from kikuchipy_geomdic.calibration.uncertainty import (
@@ -108,6 +109,7 @@ def _full_field_stage(
             progress.write,
         )
         adequacy = _adequacy(problem, ff, outcome.state.geometry, dic_update)
+        adequacy["systematic"] = ff.systematic
         # The DIC field stays the last one measured, the DIC stage's:
         # measuring it again at the full field's solution, which is within
         # the basin of it, cost a sixth of the calibration
@@ -136,6 +138,8 @@ class _FullField:
     standard_errors: dict[str, float]
     history: list[dict[str, Any]]
     held: tuple[str, ...] = ()
+    #: The systematic part of *standard_errors* (:func:`_region_errors`)
+    systematic: dict[str, float] | None = None
 
 
 def _full_field(problem, state, prior, first_it, report) -> _FullField:
@@ -185,8 +189,22 @@ def _full_field(problem, state, prior, first_it, report) -> _FullField:
     held = _insignificant_moves(solved, se, moved)
     if held and system is not None:
         geometry, rotations, cov = _hold(system, held, start, solved, split, prior, cov)
+    systematic = np.zeros(len(solved))
+    free = [i for i, nm in enumerate(solved) if nm not in held]
+    if system is not None and free:
+        systematic[free] = _region_errors(
+            system.residual,
+            system.jg[..., free],
+            system.jr,
+            system.weights,
+            system.offsets,
+            _prior_per_axis(prior),
+            system.common,
+            problem.experimental.shape[1:],
+        )
+        cov = cov + np.diag(systematic**2)
     se = _named_errors(names, np.sqrt(np.clip(np.diag(cov), 0, None)))
-    return _FullField(geometry, rotations, se, history, held)
+    return _FullField(geometry, rotations, se, history, held, _named_errors(names, systematic))
 
 
 @nb.njit(cache=True, nogil=True)
@@ -312,6 +330,7 @@ class _System:
     jr: np.ndarray
     weights: np.ndarray
     offsets: Any
+    common: bool = False
 
 
 def _hold(system: _System, held, start: MapGeometry, solved, split, prior, cov):
@@ -337,6 +356,7 @@ def _hold(system: _System, held, start: MapGeometry, solved, split, prior, cov):
         system.weights,
         prior=_prior_per_axis(prior),
         offsets=system.offsets,
+        common=system.common,
     )
     delta = {solved[i]: float(d) for i, d in zip(free, upd.delta)}
     delta.update({solved[i]: float(b) for i, b in zip(idx, back)})
@@ -357,6 +377,7 @@ def _gauss_newton(
     and the last linear :class:`_System`."""
     arrays = problem.arrays
     prior_rad = _prior_per_axis(prior)
+    common = problem.crystal is not None
     geometry, rotations = state.geometry, state.rotations
     free = [i for i, nm in enumerate(solved) if nm not in held]
     chi2_prev, weights, last, cov, system = np.inf, None, None, None, None
@@ -378,10 +399,12 @@ def _gauss_newton(
             jg, jr = j_geo, j_rot
             # Jacobians and weights fixed until the next refresh: their
             # normal equations serve every residual until then
-            all_free = JointSystem.build(jg, jr, weights, prior_rad)
+            all_free = JointSystem.build(jg, jr, weights, prior_rad, common=common)
             some_free = all_free
             if free and len(free) < len(solved):
-                some_free = JointSystem.build(jg[..., free], jr, weights, prior_rad)
+                some_free = JointSystem.build(
+                    jg[..., free], jr, weights, prior_rad, common=common
+                )
         offsets = problem.rotation_offsets(rotations)
         full = all_free.solve(residual, offsets)
         if full.chi2 > chi2_prev:
@@ -389,7 +412,7 @@ def _gauss_newton(
             history[-1]["accepted"] = False
             geometry, rotations = last
             break
-        system = _System(geometry, rotations, residual, jg, jr, weights, offsets)
+        system = _System(geometry, rotations, residual, jg, jr, weights, offsets, common)
         # Cluster-robust over the patterns, as the DIC stage's: pixels of
         # a pattern share its misfit (blur, interpolation), which the
         # white-noise model the bound is made of misses (measured: 2-3 %

@@ -20,6 +20,7 @@ from orix.crystal_map import CrystalMap
 from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.calibration._checks import _check_steps
+from kikuchipy_geomdic.calibration._crystal import NotOneCrystalError, _Crystal, _one_crystal
 from kikuchipy_geomdic.calibration._points import _experimental, _select_points
 from kikuchipy_geomdic.calibration._processing import _lobe
 from kikuchipy_geomdic.calibration.jacobian import analytic_jacobian, finite_difference_jacobian
@@ -53,6 +54,10 @@ class _Problem:
     pseudo_symmetry_ops: Rotation | None = None
     #: The smoothed static background (mean 1), if the signal has one
     lobe: np.ndarray | None = None
+    #: The crystal model, if the points are taken as one crystal
+    crystal: _Crystal | None = None
+    #: Why the points are not one crystal, if the model was asked of them
+    not_crystal: str = ""
 
     @cached_property
     def arrays(self) -> ori.MasterPatternArrays:
@@ -128,7 +133,10 @@ class _Problem:
 
     def rotation_offsets(self, rotations: Rotation) -> np.ndarray:
         """Rotation vectors (N, 3) of *rotations* away from the start (its
-        closest variant): the offsets of the orientation prior."""
+        closest variant), or with the crystal model from the parent they
+        share (in their variants): the offsets of the orientation prior."""
+        if self.crystal is not None:
+            return self.crystal.deviations(rotations)[1]
         return rotation_vectors(self.variants(rotations)[1])
 
     def best_variants(self, geometry: MapGeometry, rotations: Rotation) -> Rotation:
@@ -254,9 +262,13 @@ def _prepare_problem(
     dic_kwargs: dict,
     refine_kwargs: Mapping[str, Any] | None,
     pseudo_symmetry_ops: Rotation | None,
+    orientation_model: str = "free",
 ) -> _Problem:
     """Check the steps, select the points, read their patterns and
-    starting orientations: the :class:`_Problem` the loops solve."""
+    starting orientations: the :class:`_Problem` the loops solve. With
+    *orientation_model* "crystal" or "auto", the starts are tied to one
+    parent (:func:`_one_crystal`) when they are one crystal; "crystal"
+    raises :class:`NotOneCrystalError` when they are not."""
     steps = _check_steps(names, steps)
     ref_kw = dict(refine_kwargs or {})
     ops = ref_kw.pop("pseudo_symmetry_ops", None)
@@ -266,10 +278,25 @@ def _prepare_problem(
     exp = _experimental(signal, pts, nav)
     lookup = np.full(nav[0] * nav[1], -1)
     lookup[xmap.id] = np.arange(xmap.size)
+    start = Rotation(xmap.rotations.data[lookup[flat_index(pts, nav)]])
+    ops = None if ops is None else Rotation(ops).flatten()
+    crystal, why = None, ""
+    if orientation_model != "free":
+        crystal, why = _one_crystal(start, xmap.phases[phase_id].point_group, ops)
+        if crystal is None and orientation_model == "crystal":
+            raise NotOneCrystalError(
+                f"orientation_model='crystal' was asked of a map that is not one crystal: {why}. "
+                "Calibrate a polycrystal (or several crystals) with orientation_model='free', "
+                "or one crystal's points only (points=...)"
+            )
+        if crystal is not None:
+            # The parent in each point's variant: the starts' own errors
+            # (absorbed geometry, misindexed points) are left behind
+            start = crystal.anchors(start)
     return _Problem(
         experimental=exp,
         points=pts,
-        start_rotations=Rotation(xmap.rotations.data[lookup[flat_index(pts, nav)]]),
+        start_rotations=start,
         master_pattern=master_pattern,
         energy=float(energy),
         # The master pattern's phase, checked to match xmap's: kikuchipy
@@ -280,6 +307,8 @@ def _prepare_problem(
         steps=steps,
         dic_kwargs=dic_kwargs,
         refine_kwargs=ref_kw,
-        pseudo_symmetry_ops=None if ops is None else Rotation(ops).flatten(),
+        pseudo_symmetry_ops=ops,
         lobe=_lobe(signal),
+        crystal=crystal,
+        not_crystal=why,
     )

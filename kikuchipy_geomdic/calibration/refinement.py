@@ -44,6 +44,7 @@ from orix.crystal_map import CrystalMap
 from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.calibration._checks import _check_inputs, _step_sizes
+from kikuchipy_geomdic.calibration._crystal import CRYSTAL_SCATTER, ORIENTATION_MODELS
 from kikuchipy_geomdic.calibration._dic_stage import _check_matched, _dic_stage
 from kikuchipy_geomdic.calibration._full_field import FULL_FIELD_BASIN, _full_field_stage
 from kikuchipy_geomdic.calibration._points import calibration_points
@@ -77,12 +78,23 @@ SOLVERS = ("joint", "paper")
 _JACOBIANS = ("finite-difference", "analytic")
 
 
-def _check_options(parameters, solver, jacobian, orientation_prior) -> tuple[str, ...]:
+def _check_options(
+    parameters, solver, jacobian, orientation_prior, orientation_model="free"
+) -> tuple[str, ...]:
     """Check the options that need no data; return the parameters to
     refine in canonical order."""
     names = check_parameters(parameters)
     if solver not in SOLVERS:
         raise ValueError(f"solver must be one of {SOLVERS}, not {solver!r}")
+    if orientation_model not in ORIENTATION_MODELS:
+        raise ValueError(
+            f"orientation_model must be one of {ORIENTATION_MODELS}, not {orientation_model!r}"
+        )
+    if solver == "paper" and orientation_model == "crystal":
+        raise ValueError(
+            "orientation_model='crystal' needs the joint solver: the paper's refines every "
+            "orientation on its own"
+        )
     if jacobian not in _JACOBIANS:
         raise ValueError(f"jacobian must be one of {_JACOBIANS}, not {jacobian!r}")
     if orientation_prior is not None and not (
@@ -106,6 +118,7 @@ def refine_geometry_dic(
     points: int | np.ndarray = 100,
     solver: str = "joint",
     orientation_prior: float | None = None,
+    orientation_model: str = "free",
     pseudo_symmetry_ops: Rotation | None = None,
     steps: Mapping[str, float] | None = None,
     rois: tuple[int, int] = (8, 8),
@@ -171,7 +184,24 @@ def refine_geometry_dic(
         orientations, and with it the detector angles, to the start's.
         None (default): the starting orientations say nothing about their
         common rotation, and the angles are seen only through the PC
-        field across the map.
+        field across the map. With the crystal model: the RMS scatter of
+        the orientations about their parent (default
+        :data:`~kikuchipy_geomdic.calibration._crystal.CRYSTAL_SCATTER`).
+    orientation_model
+        "free" (default): a rotation per point, for any map. "crystal":
+        the map is one crystal (a wafer, a domain map): every point is
+        one parent orientation in one of its variants (the
+        *pseudo_symmetry_ops*) with a small scatter (*orientation_prior*),
+        the parent's three angles fitted with the geometry and each
+        point's variant chosen by its pattern. The starting orientations
+        only place the parent (their mode, modulo the crystal symmetry and
+        the variants): a point's own start error, or a wrong variant, is
+        not carried into the fit. Raises
+        :class:`~kikuchipy_geomdic.calibration._crystal.NotOneCrystalError`
+        if the starts are not one crystal. "auto": "crystal" where the
+        starts are one crystal, else "free". The result says which was
+        used (:attr:`GeometryRefinementResult.orientation_model`). Joint
+        solver only.
     pseudo_symmetry_ops
         Pseudo-symmetry operators (orix ``Rotation``, crystal frame, left
         factors ``op * rotation``), e.g.
@@ -292,7 +322,7 @@ def refine_geometry_dic(
     True
     """
     show = _show_progressbar(show_progressbar)
-    names = _check_options(parameters, solver, jacobian, orientation_prior)
+    names = _check_options(parameters, solver, jacobian, orientation_prior, orientation_model)
     nav = navigation_shape(signal)
     phase_id = _check_inputs(signal, xmap, detector, master_pattern, phase, nav)
     # Left at its default, the full field runs only where the DIC stage
@@ -317,7 +347,10 @@ def refine_geometry_dic(
         dic_kw,
         refine_kwargs,
         pseudo_symmetry_ops,
+        orientation_model if solver == "joint" else "free",
     )
+    if problem.crystal is not None and orientation_prior is None:
+        orientation_prior = CRYSTAL_SCATTER
     geometry0 = MapGeometry.from_detector(detector, _step_sizes(signal), nav)
     dic_stage = functools.partial(
         _dic_stage,
@@ -332,6 +365,12 @@ def refine_geometry_dic(
     header = (
         f"Refining the geometry ({solver} solver) with {len(problem.points)} calibration "
         f"points: {', '.join(names)}"
+        + (
+            f"; one crystal ({100 * problem.crystal.fraction:.0f} % of the starts within "
+            f"5 deg of its parent's variants), scatter prior {orientation_prior:g} deg"
+            if problem.crystal is not None
+            else ""
+        )
     )
     with _Progress(show, max_iterations, header) as progress:
         outcome = dic_stage(problem, progress, FULL_FIELD_BASIN if full_field else 0.0)

@@ -124,6 +124,19 @@ class GeometryRefinementResult:
         (``"consistent"``; if not, the standard errors are inflated to
         cover the disagreement) and a sentence saying so
         (``"verdict"``). Empty when no full field ran.
+    orientation_model
+        The orientation model used: "free" (a rotation per point) or
+        "crystal" (one parent orientation in each point's variant with a
+        small scatter, see ``orientation_model`` of
+        :func:`~kikuchipy_geomdic.calibration.refinement.refine_geometry_dic`).
+    crystal
+        With the crystal model: ``parent`` (the fitted parent
+        orientation, an orix ``Rotation``), ``scatter`` (RMS angle in deg
+        of the orientations about it in their variants, fitted),
+        ``prior`` (the scatter the fit assumed, deg) and ``fraction`` (of
+        the starting orientations within 5 deg of the parent's
+        variants); else empty. The points' variants are in
+        ``xmap.prop["variant"]``.
     """
 
     detector: EBSDDetector
@@ -146,6 +159,8 @@ class GeometryRefinementResult:
     converged: bool
     steps: dict[str, float] = field(default_factory=dict)
     adequacy: dict[str, Any] = field(default_factory=dict)
+    orientation_model: str = "free"
+    crystal: dict[str, Any] = field(default_factory=dict)
 
     def __repr__(self) -> str:
         return self.table()
@@ -161,7 +176,9 @@ class GeometryRefinementResult:
         head = (
             f"{type(self).__name__} ({self.solver} solver, {len(self.points)} points, "
             f"{len(self.history)} steps, converged={self.converged}, DIC "
-            f"{self.field_after.backend})"
+            f"{self.field_after.backend}"
+            + (f", {self.orientation_model} orientation model" if self.crystal else "")
+            + ")"
         )
         cols = f"{'parameter':<17}{'start':>10}{'refined':>11}{'sigma':>10}"
         start, true = self.start_geometry.as_dict(), None
@@ -213,6 +230,12 @@ class GeometryRefinementResult:
             notes.append("tilt and sample_tilt: only their difference is determined")
         if self.adequacy:
             notes.append(self.adequacy["verdict"])
+        sys = {n: v for n, v in self.adequacy.get("systematic", {}).items() if v > 0}
+        if sys:
+            notes.append(
+                "sigma includes a systematic part (spread of the detector's quadrants): "
+                + ", ".join(f"{n} {v:.1e}" for n, v in sys.items())
+            )
         return "\n".join(lines + notes)
 
     def plot_displacement(self, **kwargs):
@@ -307,6 +330,16 @@ def _build_result(
     names, pts = problem.parameters, problem.points
     state = outcome.state
     geometry, field_after = state.geometry, state.field
+    crystal, extra = {}, {}
+    if problem.crystal is not None:
+        scatter = problem.crystal.deviations(rotations)[1]
+        crystal = {
+            "parent": problem.crystal.fitted_parent(rotations),
+            "scatter": float(np.rad2deg(np.sqrt((scatter**2).sum(axis=1).mean()))),
+            "prior": float(prior),
+            "fraction": problem.crystal.fraction,
+        }
+        extra["variant"] = problem.crystal.labels(rotations)
     xmap_out = CrystalMap(
         rotations=rotations,
         x=np.arange(len(pts), dtype=float),
@@ -321,6 +354,7 @@ def _build_result(
                 (field_after.counts * (field_after.u**2).sum(axis=-1)).sum(axis=1)
                 / np.maximum(field_after.counts.sum(axis=1), 1)
             ),
+            **extra,
         },
     )
     det = geometry.detector()
@@ -362,4 +396,6 @@ def _build_result(
         converged=outcome.converged,
         steps=problem.steps,
         adequacy=adequacy or {},
+        orientation_model="free" if problem.crystal is None else "crystal",
+        crystal=crystal,
     )

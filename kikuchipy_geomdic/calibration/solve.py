@@ -317,6 +317,7 @@ def solve_joint(
     offsets: np.ndarray | None = None,
     damping: float = 0.0,
     rtol: float = 1e-10,
+    common: bool = False,
 ) -> JointUpdate:
     r"""Return the geometry and per-pattern rotation updates, solved jointly.
 
@@ -363,6 +364,14 @@ def solve_joint(
         Directions whose reduced curvature, relative to the full
         sensitivity, is below this are taken as exactly undetermined and
         get no update (minimum norm), as in :func:`solve_update`.
+    common
+        Add a rotation :math:`\Omega` common to all patterns as three
+        more global unknowns: every pattern turns by
+        :math:`\Omega + \delta\omega_i` and the *prior* holds only the
+        :math:`\omega_i + \delta\omega_i` about it, the scatter of one
+        crystal's orientations about its parent (requires a *prior*).
+        :math:`\Omega` is eliminated from the geometry's covariance and
+        added to :attr:`JointUpdate.rotations`.
 
     Returns
     -------
@@ -384,7 +393,8 @@ def solve_joint(
     >>> np.round(u.delta, 9).tolist(), np.round(u.rotations, 9).tolist()
     ([0.3], [[0.1, 0.0, 0.0], [0.0, -0.2, 0.05]])
     """
-    return JointSystem.build(j_geo, j_rot, weights, prior, rtol).solve(residual, offsets, damping)
+    system = JointSystem.build(j_geo, j_rot, weights, prior, rtol, common)
+    return system.solve(residual, offsets, damping)
 
 
 @dataclass(frozen=True, eq=False)
@@ -412,6 +422,9 @@ class JointSystem:
     v: np.ndarray
     keep: np.ndarray
     n_rot: int
+    #: Geometry parameters K; with a common rotation the system holds
+    #: K + 3 global unknowns, the last three that rotation
+    k: int
 
     @classmethod
     def build(
@@ -421,16 +434,18 @@ class JointSystem:
         weights: np.ndarray,
         prior: float | None = None,
         rtol: float = 1e-10,
+        common: bool = False,
     ) -> JointSystem:
         """Build the normal equations of a joint solve.
 
         Parameters
         ----------
-        j_geo, j_rot, weights, prior, rtol
+        j_geo, j_rot, weights, prior, rtol, common
             As in :func:`solve_joint`: geometry Jacobians (N, M, K),
             rotation Jacobians (N, M, 3), inverse variances (N, M), the
-            orientation prior (radians or None) and the tolerance below
-            which a direction counts as undetermined.
+            orientation prior (radians or None), the tolerance below
+            which a direction counts as undetermined and whether a
+            rotation common to all patterns is a global unknown.
 
         Returns
         -------
@@ -451,6 +466,15 @@ class JointSystem:
         p = 0.0 if prior is None else 1.0 / float(prior) ** 2
         if prior is not None and not (np.isfinite(p) and prior > 0):
             raise ValueError(f"prior must be a positive standard deviation, not {prior}")
+        k = jg.shape[2]
+        if common:
+            if prior is None:
+                raise ValueError(
+                    "a common rotation needs a prior: without one it is every pattern's "
+                    "own rotation too"
+                )
+            # The common rotation moves every pattern as its own does
+            jg = np.concatenate([jg, jr], axis=2)
         # Batched matrix products (BLAS): einsum over the M vectors or
         # pixels of a full-field system took most of its time
         jgw_t = np.swapaxes(jg * w[..., None], 1, 2)
@@ -494,6 +518,7 @@ class JointSystem:
             v=v,
             keep=mu > rtol * max(mu.max(), 1.0),
             n_rot=int(np.linalg.matrix_rank(a, hermitian=True).sum()),
+            k=k,
         )
 
     def solve(
@@ -563,6 +588,18 @@ class JointSystem:
         # Rotation errors given the geometry (the geometry's own error adds
         # a common part, see covariance)
         rot_sigma = np.sqrt(factor * np.clip(np.diagonal(self.a_inv, axis1=1, axis2=2), 0, None))
+        reduced = np.sqrt(np.clip(np.diag(self.s_red), 0, None))
+        k = self.k
+        if delta.size > k:
+            # The common rotation: part of every pattern's, marginalised
+            # out of the geometry's covariance
+            dw = dw + delta[k:]
+            delta, cov, model = delta[:k], cov[:k, :k], model[:k, :k]
+            reduced, full = reduced[:k], full[:k]
+            null = null[:k]
+            if null.size:
+                lengths = np.linalg.norm(null, axis=0)
+                null = null[:, lengths > 1e-9] / lengths[lengths > 1e-9]
         return JointUpdate(
             delta=delta,
             rotations=dw,
@@ -574,6 +611,6 @@ class JointSystem:
             chi2=chi2,
             predicted_chi2=chi2_after,
             dof=dof,
-            reduced_norms=np.sqrt(np.clip(np.diag(self.s_red), 0, None)),
+            reduced_norms=reduced,
             full_norms=full,
         )

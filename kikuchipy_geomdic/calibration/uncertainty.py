@@ -107,6 +107,7 @@ def _dic_update(problem: _Problem, state: _State, prior) -> JointUpdate:
         problem.rotation_offsets(state.rotations),
         _prior_per_axis(prior),
         0.0,
+        problem.crystal is not None,
     )
     return update
 

@@ -1,0 +1,170 @@
+"""The orientation model of one crystal (``orientation_model="crystal"``):
+every calibration point is one parent orientation in one of its
+pseudo-symmetric variants, with a small scatter about it
+(:class:`_Crystal`), instead of a free rotation per point; and the check
+that a map is one crystal at all (:func:`_one_crystal`).
+
+With a free rotation per pattern a PC change is almost a rotation, so on
+one crystal only the PC field across the map separates them, and a
+misfit all patterns share does not average out. Tied to one parent (three
+unknowns, the common rotation of
+:func:`~kikuchipy_geomdic.calibration.solve.solve_joint`), the patterns'
+changes across the map are the beam scan's, which the geometry alone
+must explain.
+
+Layer 6 (calibration): may import geometry, io, patterns, indexing, plotting
+and calibration.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from orix.quaternion import Rotation
+
+from kikuchipy_geomdic.geometry import rotation_vectors
+from kikuchipy_geomdic.indexing._quaternions import _conj, _qmul
+from kikuchipy_geomdic.indexing.variants import (
+    TOLERANCE,
+    _choose_parent,
+    _label,
+    _nearest,
+    _proper_rotations,
+    _variant_table,
+)
+
+#: Orientation models of :func:`~kikuchipy_geomdic.calibration.refinement.refine_geometry_dic`.
+ORIENTATION_MODELS = ("free", "crystal", "auto")
+
+#: Smallest fraction of the starting orientations within
+#: :data:`~kikuchipy_geomdic.indexing.variants.TOLERANCE` of one parent
+#: (modulo its variants) for a map to be taken as one crystal. Users'
+#: starts of a BaTiO3 domain map, a random variant per point refined at a
+#: geometry 2 % off, are a median 1.9 deg from their variant, a tenth
+#: beyond 8 deg; a polycrystal of n grains has about 1/n.
+MIN_CRYSTAL_FRACTION = 0.6
+
+#: A second orientation holding this fraction of the points (within the
+#: same tolerance) makes the map two crystals, not one with misindexed
+#: points (those scatter).
+SECOND_CRYSTAL_FRACTION = 0.15
+
+#: RMS scatter (deg) of one crystal's orientations about its parent
+#: assumed when ``orientation_prior`` is not given: a wafer or a domain
+#: map scatters by hundredths of a degree; a tenth leaves room and still
+#: keeps the PC field (over 65 um, a few tenths of a degree of apparent
+#: rotation) from being taken up by the orientations.
+CRYSTAL_SCATTER = 0.1
+
+
+class NotOneCrystalError(ValueError):
+    """The map is not one crystal: ``orientation_model="crystal"`` has no
+    parent to fit."""
+
+
+@dataclass(frozen=True)
+class _Crystal:
+    """One crystal's orientation model.
+
+    Attributes
+    ----------
+    parent
+        Quaternion (4,) of the parent orientation the labels refer to.
+    table
+        ``s * ops[k]`` (m, K + 1, 4): the crystal's proper rotations times
+        the variant operators, identity first.
+    fraction
+        Fraction of the starting orientations within
+        :data:`~kikuchipy_geomdic.indexing.variants.TOLERANCE` of the
+        parent's variants.
+    """
+
+    parent: np.ndarray
+    table: np.ndarray
+    fraction: float
+
+    def _nearest(self, rotations: Rotation) -> np.ndarray:
+        """Index into the flattened table of each rotation's variant."""
+        q = np.asarray(Rotation(rotations).flatten().data, dtype=np.float64)
+        return _nearest(q, self.parent, self.table.reshape(-1, 4))[0]
+
+    def labels(self, rotations: Rotation) -> np.ndarray:
+        """Variant index (N,) of each rotation: 0 the parent's own, k
+        ``ops[k - 1]`` applied."""
+        return self._nearest(rotations) % self.table.shape[1]
+
+    def anchors(self, rotations: Rotation) -> Rotation:
+        """The parent in each rotation's nearest variant, ``s * op * parent``:
+        the model's start, whatever the starting orientations' errors."""
+        h = self.table.reshape(-1, 4)[self._nearest(rotations)]
+        return Rotation(_qmul(h, self.parent[None]))
+
+    def deviations(self, rotations: Rotation) -> tuple[np.ndarray, np.ndarray]:
+        """The parent's current common rotation (4,), a sample-frame right
+        factor of every anchor, and each rotation's vector (N, 3, radians)
+        about it: the orientations' scatter, the prior's offsets."""
+        q = np.asarray(Rotation(rotations).flatten().data, dtype=np.float64)
+        anchor = np.asarray(self.anchors(rotations).data)
+        d = _qmul(_conj(anchor), q)
+        common = np.array([1.0, 0.0, 0.0, 0.0])
+        # The mean to second order: twice about the last estimate
+        for _ in range(2):
+            v = rotation_vectors(Rotation(_qmul(_conj(common)[None], d)))
+            common = _qmul(common, _from_vector(v.mean(axis=0)))
+        return common, rotation_vectors(Rotation(_qmul(_conj(common)[None], d)))
+
+    def fitted_parent(self, rotations: Rotation) -> Rotation:
+        """The parent orientation the *rotations* share."""
+        common, _ = self.deviations(rotations)
+        return Rotation(_qmul(self.parent, common))
+
+
+def _from_vector(v: np.ndarray) -> np.ndarray:
+    half = np.linalg.norm(v) / 2
+    return np.concatenate([[np.cos(half)], v * np.sinc(half / np.pi) / 2])
+
+
+def _one_crystal(
+    rotations: Rotation, symmetry, pseudo_symmetry_ops: Rotation | None
+) -> tuple[_Crystal | None, str]:
+    """The crystal model of the starting *rotations*, or None and why the
+    map is not one crystal.
+
+    The parent is the mode of the starts modulo the crystal's proper
+    rotations and the variants, averaged over those within
+    :data:`~kikuchipy_geomdic.indexing.variants.TOLERANCE`
+    (:func:`~kikuchipy_geomdic.indexing.variants.domain_labels`' robust
+    mean). One crystal: at least :data:`MIN_CRYSTAL_FRACTION` of the points
+    within that tolerance, and no second orientation holding
+    :data:`SECOND_CRYSTAL_FRACTION` of them."""
+    q = np.asarray(Rotation(rotations).flatten().data, dtype=np.float64)
+    if pseudo_symmetry_ops is None:
+        s = _proper_rotations(symmetry)
+        table = s[:, None, :]
+        group = s
+    else:
+        table, group = _variant_table(Rotation(pseudo_symmetry_ops).flatten(), symmetry)
+    tol = np.deg2rad(TOLERANCE)
+    parent = _choose_parent(q, table, group, tol)
+    near = _label(q, parent, table)[1] <= tol
+    fraction = float(near.mean())
+    second = 0.0
+    if (~near).sum() >= 2:
+        rest = q[~near]
+        p2 = _choose_parent(rest, table, group, tol)
+        second = float((_label(rest, p2, table)[1] <= tol).sum() / len(q))
+    if fraction < MIN_CRYSTAL_FRACTION or second >= SECOND_CRYSTAL_FRACTION:
+        why = (
+            f"{100 * fraction:.0f} % of the starting orientations are within {TOLERANCE:g} deg "
+            "of one parent orientation"
+            + (" or its variants" if pseudo_symmetry_ops is not None else "")
+            + f" (one crystal: at least {100 * MIN_CRYSTAL_FRACTION:.0f} %)"
+            + (
+                f", and another orientation holds {100 * second:.0f} % of them"
+                if second >= SECOND_CRYSTAL_FRACTION
+                else ""
+            )
+        )
+        return None, why
+    return _Crystal(parent=parent, table=table, fraction=fraction), ""
