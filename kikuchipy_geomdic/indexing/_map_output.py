@@ -14,6 +14,7 @@ import numpy as np
 from orix.crystal_map import CrystalMap
 from orix.quaternion import Rotation
 
+from kikuchipy_geomdic.indexing.variants import domain_labels
 from kikuchipy_geomdic.patterns.phases import map_with_phase
 
 
@@ -44,8 +45,6 @@ def _with_domain(xmap: CrystalMap, ops, phase_id: int) -> CrystalMap:
     the parent chosen from the refined, converged points) to a fresh map."""
     if ops is None:
         return xmap
-    from kikuchipy_geomdic.indexing.variants import domain_labels
-
     trusted = xmap.prop["refined"].astype(bool) & (xmap.prop.get("converged", 1) != 0)
     try:
         lab = domain_labels(xmap, ops, phase=phase_id, points=trusted if trusted.any() else None)
