@@ -184,9 +184,15 @@ def usable_points(xmap: CrystalMap, phase_id: int | None = None) -> np.ndarray:
     [True, False, False, False]
     """
     check_whole_map(xmap)
-    q = xmap.rotations.data.reshape(-1, 4)
-    with np.errstate(invalid="ignore"):
-        ok = np.isfinite(q).all(axis=1) & (np.abs(np.linalg.norm(q, axis=1) - 1) < 1e-3)
+    ok = _usable_rotations(xmap.rotations.data.reshape(-1, 4))
     pid = xmap.phase_id
     ok &= pid >= 0 if phase_id is None else pid == phase_id
     return ok.reshape(xmap.shape)
+
+
+def _usable_rotations(q) -> np.ndarray:
+    """Which quaternions of *q* (..., 4) are usable: finite, of norm near 1
+    (zero quaternions mark non-indexed points in some files)."""
+    q = np.asarray(q)
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(q).all(axis=-1) & (np.abs(np.linalg.norm(q, axis=-1) - 1) < 1e-3)

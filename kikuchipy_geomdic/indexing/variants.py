@@ -39,7 +39,7 @@ import numpy as np
 from orix.crystal_map import CrystalMap
 from orix.quaternion import Orientation, Rotation
 
-from kikuchipy_geomdic.geometry.maps import check_whole_map, usable_points
+from kikuchipy_geomdic.geometry.maps import _usable_rotations, check_whole_map, usable_points
 from kikuchipy_geomdic.indexing._quaternions import _closure, _conj, _qmul
 from kikuchipy_geomdic.patterns.phases import _phase_id
 
@@ -482,9 +482,7 @@ def _inputs(orientations, symmetry, phase):
             f"{type(orientations).__name__}"
         )
     q = orientations.data
-    with np.errstate(invalid="ignore"):
-        usable = np.isfinite(q).all(axis=-1) & (np.abs(np.linalg.norm(q, axis=-1) - 1) < 1e-3)
-    return Rotation(q), _need(symmetry), usable
+    return Rotation(q), _need(symmetry), _usable_rotations(q)
 
 
 def _need(symmetry):
