@@ -43,8 +43,9 @@ def _absolute(module: str | None, level: int, here: str, is_init: bool) -> str:
     return ".".join(base + ([module] if module else []))
 
 
-def _reexports(modules) -> dict[str, dict[str, str]]:
-    """For each package, the module its ``__init__`` takes each name from."""
+def _reexports(modules) -> dict[str, dict[str, tuple[str, str]]]:
+    """For each package, the module its ``__init__`` takes each name from,
+    and the name there."""
     out = {}
     for name, (path, is_init) in modules.items():
         if not is_init:
@@ -54,7 +55,7 @@ def _reexports(modules) -> dict[str, dict[str, str]]:
             if isinstance(node, ast.ImportFrom):
                 source = _absolute(node.module, node.level, name, True)
                 for alias in node.names:
-                    table[alias.asname or alias.name] = source
+                    table[alias.asname or alias.name] = (source, alias.name)
     return out
 
 
@@ -62,10 +63,10 @@ def _target(package: str, name: str, modules, reexports, seen=()) -> str:
     """The module that ``from package import name`` imports."""
     if f"{package}.{name}" in modules:
         return f"{package}.{name}"
-    source = reexports.get(package, {}).get(name)
+    source, original = reexports.get(package, {}).get(name, (None, name))
     if source in modules and source != package and source not in seen:
         if source in reexports:  # a package re-exporting a subpackage's name
-            return _target(source, name, modules, reexports, (*seen, package))
+            return _target(source, original, modules, reexports, (*seen, package))
         return source
     return package
 
@@ -173,14 +174,14 @@ def test_circles_are_found(tmp_path):
     pkg = tmp_path / "pkg"
     (pkg / "sub").mkdir(parents=True)
     files = {
-        "__init__.py": "from pkg.sub import f\n",
+        "__init__.py": "from pkg.sub import f\nfrom pkg.sub import kk as k\n",
         "a.py": "from pkg import b\n",
         "b.py": "def g():\n    from .c import h\n",
         "c.py": "import pkg.a\n",
-        "sub/__init__.py": "from pkg.sub.x import f\nfrom .y import k\n",
-        "sub/x.py": "from pkg.sub import k\ndef f(): ...\n",
+        "sub/__init__.py": "from pkg.sub.x import f\nfrom .y import k as kk\n",
+        "sub/x.py": "from pkg.sub import kk\ndef f(): ...\n",
         "sub/y.py": "def k(): ...\n",
-        "d.py": "from pkg.sub import f\n",
+        "d.py": "from pkg.sub import f\nfrom pkg import k\n",
     }
     for name, text in files.items():
         (pkg / name).write_text(text)
@@ -188,7 +189,7 @@ def test_circles_are_found(tmp_path):
     assert graph["pkg"] == set()
     assert graph["pkg.sub"] == set()
     assert graph["pkg.sub.x"] == {"pkg.sub.y"}
-    assert graph["pkg.d"] == {"pkg.sub.x"}
+    assert graph["pkg.d"] == {"pkg.sub.x", "pkg.sub.y"}
     assert [c for c, _ in circles(graph)] == [["pkg.a", "pkg.b", "pkg.c", "pkg.a"]]
     # A name re-exported from a sibling that imports the module back
     (pkg / "sub/y.py").write_text("from pkg.sub import f\ndef k(): ...\n")
