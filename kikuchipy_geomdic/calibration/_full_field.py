@@ -108,7 +108,9 @@ def _full_field_stage(
             1 + max((h["iteration"] for h in outcome.history), default=-1),
             progress.write,
         )
-        adequacy = _adequacy(problem, ff, outcome.state.geometry, dic_update)
+        adequacy = _adequacy(
+            problem, ff.geometry, ff.standard_errors, ff.held, outcome.state.geometry, dic_update
+        )
         adequacy["systematic"] = ff.systematic
         # The DIC field stays the last one measured, the DIC stage's:
         # measuring it again at the full field's solution, which is within

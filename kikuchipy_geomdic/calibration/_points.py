@@ -11,8 +11,7 @@ import numpy as np
 from kikuchipy.signals import EBSD
 from orix.crystal_map import CrystalMap
 
-from kikuchipy_geomdic.geometry.maps import flat_index
-from kikuchipy_geomdic.indexing.reindex import usable_points
+from kikuchipy_geomdic.geometry.maps import flat_index, usable_points
 
 
 def calibration_points(

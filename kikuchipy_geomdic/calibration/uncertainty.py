@@ -10,7 +10,7 @@ and calibration.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -23,9 +23,6 @@ from kikuchipy_geomdic.calibration._dic_fit import (
 from kikuchipy_geomdic.calibration._problem import _Problem, _State
 from kikuchipy_geomdic.calibration.solve import JointUpdate
 from kikuchipy_geomdic.geometry import MapGeometry, solved_parameters
-
-if TYPE_CHECKING:
-    from kikuchipy_geomdic.calibration._full_field import _FullField
 
 #: A parameter whose standard error exceeds this (its unit) is poorly
 #: determined by the map: the joint solver moves it only by significant
@@ -119,9 +116,15 @@ def _standard_errors(problem: _Problem, state: _State, prior) -> dict[str, float
 
 
 def _adequacy(
-    problem: _Problem, ff: _FullField, dic_geometry: MapGeometry, update: JointUpdate
+    problem: _Problem,
+    geometry: MapGeometry,
+    standard_errors: dict[str, float],
+    held: Sequence[str],
+    dic_geometry: MapGeometry,
+    update: JointUpdate,
 ) -> dict[str, Any]:
-    """Whether the full field's solution agrees with the DIC evidence.
+    """Whether the full field's solution (its *geometry*, *standard_errors*
+    and the parameters it *held*) agrees with the DIC evidence.
 
     A misfit every pattern shares (ghost bands, band profiles changed by
     the processing, another simulator's master pattern) biases the full
@@ -140,13 +143,13 @@ def _adequacy(
     steps = (
         _solved_values(dic_geometry, solved, split)
         + update.delta
-        - _solved_values(ff.geometry, solved, split)
+        - _solved_values(geometry, solved, split)
     )
     z, dic_step = {}, {}
     for name, step, se_dic in zip(solved, steps, update.standard_errors):
         key = TILT_DIFFERENCE if name in ("tilt", "sample_tilt") else name
-        se_ff = ff.standard_errors.get(key, np.inf)
-        if name in ff.held or max(se_dic, se_ff) > DETERMINACY_LIMITS[name]:
+        se_ff = standard_errors.get(key, np.inf)
+        if name in held or max(se_dic, se_ff) > DETERMINACY_LIMITS[name]:
             continue
         z[key] = float(step / np.hypot(se_dic, se_ff))
         dic_step[key] = float(step)

@@ -44,8 +44,7 @@ def _calibration_points(signal, xmap, phase_id: int, n: int):
     import numpy as np
 
     from kikuchipy_geomdic.calibration.refinement import calibration_points
-    from kikuchipy_geomdic.geometry.maps import flat_index, navigation_shape
-    from kikuchipy_geomdic.indexing.reindex import usable_points
+    from kikuchipy_geomdic.geometry.maps import flat_index, navigation_shape, usable_points
 
     nav = navigation_shape(signal)
     usable = usable_points(xmap, phase_id).reshape(nav)

@@ -71,8 +71,8 @@ def _reindex_detector(args: argparse.Namespace, signal):
 def _reindex(args: argparse.Namespace) -> int:
     from orix import io as orix_io
 
-    from kikuchipy_geomdic.geometry.maps import navigation_shape
-    from kikuchipy_geomdic.indexing.reindex import reindex, usable_points
+    from kikuchipy_geomdic.geometry.maps import navigation_shape, usable_points
+    from kikuchipy_geomdic.indexing.reindex import reindex
     from kikuchipy_geomdic.io import conventions as cv
     from kikuchipy_geomdic.io import summary as su
 

@@ -45,8 +45,8 @@ Modules
 map), :mod:`~kikuchipy_geomdic.geometry.rotations` (rotation vectors),
 :mod:`~kikuchipy_geomdic.geometry.map_geometry`
 (:class:`~kikuchipy_geomdic.geometry.map_geometry.MapGeometry`) and
-:mod:`~kikuchipy_geomdic.geometry.maps` (navigation shapes, flat indices);
-their public names are exported here.
+:mod:`~kikuchipy_geomdic.geometry.maps` (navigation shapes, flat indices,
+usable points); their public names are exported here.
 
 Layer 1 (geometry): imports nothing of the package outside its own layer.
 """

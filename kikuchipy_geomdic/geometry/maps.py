@@ -1,4 +1,5 @@
-"""Map-level helpers: navigation shape, flat indices of points, whole maps.
+"""Map-level helpers: navigation shape, flat indices of points, whole maps
+and their points with a usable orientation (:func:`usable_points`).
 
 A map is handled as (rows, columns) throughout the package: a 1D map of
 *n* patterns is a map of shape (1, n). Calibration points are (row, col)
@@ -16,7 +17,13 @@ from kikuchipy.detectors import EBSDDetector
 from kikuchipy.signals import EBSD
 from orix.crystal_map import CrystalMap
 
-__all__ = ["navigation_shape", "flat_index", "check_whole_map", "check_signal_and_detector"]
+__all__ = [
+    "navigation_shape",
+    "flat_index",
+    "check_whole_map",
+    "check_signal_and_detector",
+    "usable_points",
+]
 
 
 def navigation_shape(obj) -> tuple[int, int]:
@@ -145,3 +152,47 @@ def check_whole_map(xmap: CrystalMap) -> None:
         )
     if xmap.rotations_per_point != 1:
         raise ValueError("The crystal map must have one rotation per point")
+
+
+def usable_points(xmap: CrystalMap, phase_id: int | None = None) -> np.ndarray:
+    """Return which map points have a usable orientation.
+
+    Parameters
+    ----------
+    xmap
+        Crystal map; all its points must be in the data.
+    phase_id
+        Only points of this phase are usable. Default: any indexed phase.
+
+    Returns
+    -------
+    usable
+        Boolean array of ``xmap.shape``: indexed (phase id >= 0, or the
+        given phase) with a finite rotation of norm near 1 (zero
+        quaternions, which some files use for non-indexed points, and
+        NaN rotations are not usable).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from orix.crystal_map import CrystalMap
+    >>> from orix.quaternion import Rotation
+    >>> from kikuchipy_geomdic.geometry.maps import usable_points
+    >>> q = np.array([[1, 0, 0, 0], [0, 0, 0, 0], [np.nan] * 4, [1, 0, 0, 0]])
+    >>> xmap = CrystalMap(Rotation(q), phase_id=np.array([0, 0, 0, -1]))
+    >>> usable_points(xmap).tolist()
+    [True, False, False, False]
+    """
+    check_whole_map(xmap)
+    ok = _usable_rotations(xmap.rotations.data.reshape(-1, 4))
+    pid = xmap.phase_id
+    ok &= pid >= 0 if phase_id is None else pid == phase_id
+    return ok.reshape(xmap.shape)
+
+
+def _usable_rotations(q) -> np.ndarray:
+    """Which quaternions of *q* (..., 4) are usable: finite, of norm near 1
+    (zero quaternions mark non-indexed points in some files)."""
+    q = np.asarray(q)
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(q).all(axis=-1) & (np.abs(np.linalg.norm(q, axis=-1) - 1) < 1e-3)

@@ -102,6 +102,13 @@ def _atan_unit(t):
 SUMS = 18
 
 
+@nb.njit(inline="always", fastmath=True)
+def _add_scaled(a, b, c, x, y, z, w):
+    """``(a, b, c) + w * (x, y, z)``: three of :func:`_project`'s sums,
+    inlined so that they stay scalars."""
+    return a + x * w, b + y * w, c + z * w
+
+
 @nb.njit(cache=True, nogil=True, fastmath=True)
 def _project(q, dc, upper, lower, scale, value, jac, with_jac, gradient=None, e=None, sums=None):
     """Project one pattern (kikuchipy's Lambert lookup, bilinear) into
@@ -214,15 +221,9 @@ def _project(q, dc, upper, lower, scale, value, jac, with_jac, gradient=None, e=
                 s0 += j0
                 s1 += j1
                 s2 += j2
-                sv0 += j0 * val
-                sv1 += j1 * val
-                sv2 += j2 * val
-                se0 += j0 * ek
-                se1 += j1 * ek
-                se2 += j2 * ek
-                s00 += j0 * j0
-                s01 += j0 * j1
-                s02 += j0 * j2
+                sv0, sv1, sv2 = _add_scaled(sv0, sv1, sv2, j0, j1, j2, val)
+                se0, se1, se2 = _add_scaled(se0, se1, se2, j0, j1, j2, ek)
+                s00, s01, s02 = _add_scaled(s00, s01, s02, j0, j1, j2, j0)
                 s11 += j1 * j1
                 s12 += j1 * j2
                 s22 += j2 * j2

@@ -14,6 +14,8 @@ import numpy as np
 from orix.crystal_map import CrystalMap
 from orix.quaternion import Rotation
 
+from kikuchipy_geomdic.geometry.maps import _usable_rotations
+from kikuchipy_geomdic.indexing.variants import domain_labels
 from kikuchipy_geomdic.patterns.phases import map_with_phase
 
 
@@ -26,11 +28,7 @@ def _merge(xmap, q_out, done, bad, prop, phase_id, mp_phase) -> CrystalMap:
     pid = xmap.phase_id.copy()
     # Points with an invalid rotation (any phase) or a NaN pattern are not
     # indexed; masked-out points and other phases keep theirs
-    with np.errstate(invalid="ignore"):
-        invalid_rot = ~(
-            np.isfinite(q).all(axis=1) & (np.abs(np.linalg.norm(q, axis=1) - 1) < 1e-3)
-        )
-    lost = bad | invalid_rot
+    lost = bad | ~_usable_rotations(q)
     pid[lost] = -1
     q[lost] = [1.0, 0.0, 0.0, 0.0]
     props = {k: np.asarray(v).copy() for k, v in xmap.prop.items()}
@@ -44,8 +42,6 @@ def _with_domain(xmap: CrystalMap, ops, phase_id: int) -> CrystalMap:
     the parent chosen from the refined, converged points) to a fresh map."""
     if ops is None:
         return xmap
-    from kikuchipy_geomdic.indexing.variants import domain_labels
-
     trusted = xmap.prop["refined"].astype(bool) & (xmap.prop.get("converged", 1) != 0)
     try:
         lab = domain_labels(xmap, ops, phase=phase_id, points=trusted if trusted.any() else None)

@@ -49,6 +49,7 @@ from kikuchipy_geomdic.geometry.maps import (
     check_signal_and_detector,
     check_whole_map,
     navigation_shape,
+    usable_points,
 )
 from kikuchipy_geomdic.indexing._kikuchipy import (
     _reindex_kikuchipy,
@@ -65,7 +66,6 @@ from kikuchipy_geomdic.indexing._map_refinement import (
 from kikuchipy_geomdic.patterns.phases import check_phase
 
 __all__ = [
-    "usable_points",
     "reindex",
     "refine_map",
     "refine_orientations",
@@ -73,44 +73,6 @@ __all__ = [
     "quiet",
     "VARIANT_SIGNIFICANCE",
 ]
-
-
-def usable_points(xmap: CrystalMap, phase_id: int | None = None) -> np.ndarray:
-    """Return which map points have a usable orientation.
-
-    Parameters
-    ----------
-    xmap
-        Crystal map; all its points must be in the data.
-    phase_id
-        Only points of this phase are usable. Default: any indexed phase.
-
-    Returns
-    -------
-    usable
-        Boolean array of ``xmap.shape``: indexed (phase id >= 0, or the
-        given phase) with a finite rotation of norm near 1 (zero
-        quaternions, which some files use for non-indexed points, and
-        NaN rotations are not usable).
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from orix.crystal_map import CrystalMap
-    >>> from orix.quaternion import Rotation
-    >>> from kikuchipy_geomdic.indexing.reindex import usable_points
-    >>> q = np.array([[1, 0, 0, 0], [0, 0, 0, 0], [np.nan] * 4, [1, 0, 0, 0]])
-    >>> xmap = CrystalMap(Rotation(q), phase_id=np.array([0, 0, 0, -1]))
-    >>> usable_points(xmap).tolist()
-    [True, False, False, False]
-    """
-    check_whole_map(xmap)
-    q = xmap.rotations.data.reshape(-1, 4)
-    with np.errstate(invalid="ignore"):
-        ok = np.isfinite(q).all(axis=1) & (np.abs(np.linalg.norm(q, axis=1) - 1) < 1e-3)
-    pid = xmap.phase_id
-    ok &= pid >= 0 if phase_id is None else pid == phase_id
-    return ok.reshape(xmap.shape)
 
 
 # --------------------------------------------------------------------- #

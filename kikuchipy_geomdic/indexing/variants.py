@@ -39,7 +39,9 @@ import numpy as np
 from orix.crystal_map import CrystalMap
 from orix.quaternion import Orientation, Rotation
 
+from kikuchipy_geomdic.geometry.maps import _usable_rotations, check_whole_map, usable_points
 from kikuchipy_geomdic.indexing._quaternions import _closure, _conj, _qmul
+from kikuchipy_geomdic.patterns.phases import _phase_id
 
 __all__ = [
     "VARIANT_NAMES",
@@ -454,10 +456,6 @@ def _variant_table(ops: Rotation, symmetry):
 def _inputs(orientations, symmetry, phase):
     """Rotations, symmetry and usable mask (the input's shape)."""
     if isinstance(orientations, CrystalMap):
-        from kikuchipy_geomdic.geometry.maps import check_whole_map
-        from kikuchipy_geomdic.indexing.reindex import usable_points
-        from kikuchipy_geomdic.patterns.phases import _phase_id
-
         check_whole_map(orientations)
         if phase is None:
             ids = [int(i) for i in np.unique(orientations.phase_id) if i >= 0]
@@ -484,9 +482,7 @@ def _inputs(orientations, symmetry, phase):
             f"{type(orientations).__name__}"
         )
     q = orientations.data
-    with np.errstate(invalid="ignore"):
-        usable = np.isfinite(q).all(axis=-1) & (np.abs(np.linalg.norm(q, axis=-1) - 1) < 1e-3)
-    return Rotation(q), _need(symmetry), usable
+    return Rotation(q), _need(symmetry), _usable_rotations(q)
 
 
 def _need(symmetry):

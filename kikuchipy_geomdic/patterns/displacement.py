@@ -43,7 +43,7 @@ from kikuchipy_geomdic.patterns.roi import (
     roi_index,
     roi_weights,
 )
-from kikuchipy_geomdic.patterns.vectors import pattern_vectors, resolve_backend
+from kikuchipy_geomdic.patterns.vectors import _DIC_DEFAULTS, pattern_vectors, resolve_backend
 
 __all__ = ["DisplacementField", "measure_displacements"]
 
@@ -214,18 +214,20 @@ def _as_stack(patterns, name):
 def measure_displacements(
     simulated,
     experimental,
-    rois: tuple[int, int] = (8, 8),
-    binning: int = 1,
-    noise: float = 0.0,
-    blur: float = 0.0,
-    dic: str = "auto",
-    max_roi_crossings: int | None = 2,
-    forward_backward: float | None = 0.2,
-    robust: float | None = 3.0,
-    features_per_roi: int = 8,
-    window: int = 11,
-    levels: int = 3,
-    smoothing: float = 0.7,
+    # The DIC options of one pattern pair, with the defaults that
+    # pattern_vectors completes its options with
+    rois: tuple[int, int] = _DIC_DEFAULTS["rois"],
+    binning: int = _DIC_DEFAULTS["binning"],
+    noise: float = _DIC_DEFAULTS["noise"],
+    blur: float = _DIC_DEFAULTS["blur"],
+    dic: str = _DIC_DEFAULTS["dic"],
+    max_roi_crossings: int | None = _DIC_DEFAULTS["max_roi_crossings"],
+    forward_backward: float | None = _DIC_DEFAULTS["forward_backward"],
+    robust: float | None = _DIC_DEFAULTS["robust"],
+    features_per_roi: int = _DIC_DEFAULTS["features_per_roi"],
+    window: int = _DIC_DEFAULTS["window"],
+    levels: int = _DIC_DEFAULTS["levels"],
+    smoothing: float = _DIC_DEFAULTS["smoothing"],
     seed: int | None = None,
     keep_vectors: bool = False,
     chunk_size: int | None = None,

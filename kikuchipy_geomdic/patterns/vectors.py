@@ -7,7 +7,8 @@ experimental one with pyramidal Lucas-Kanade (LK) optical flow, and keeps
 the vectors that pass the tests of
 :func:`~kikuchipy_geomdic.patterns.roi.filter_vectors`;
 :func:`~kikuchipy_geomdic.patterns.displacement.measure_displacements`
-runs it on every pair of a map.
+runs it on every pair of a map. The defaults of the DIC options, which
+both take, are defined here.
 
 Backends
 --------
@@ -31,8 +32,7 @@ Layer 3 (patterns): may import geometry, io, patterns.
 
 from __future__ import annotations
 
-import inspect
-from functools import cache, partial
+from functools import partial
 
 import numpy as np
 from scipy import ndimage
@@ -53,6 +53,25 @@ from kikuchipy_geomdic.patterns.preprocessing import (
 from kikuchipy_geomdic.patterns.roi import _check_grid, _tracking_labels, filter_vectors
 
 __all__ = ["pattern_vectors", "resolve_backend"]
+
+#: The DIC options of one pattern pair with their defaults, in the order of
+#: :func:`~kikuchipy_geomdic.patterns.displacement.measure_displacements`'
+#: signature, which takes its defaults from here: their one definition
+#: (the options are described there).
+_DIC_DEFAULTS = {
+    "rois": (8, 8),
+    "binning": 1,
+    "noise": 0.0,
+    "blur": 0.0,
+    "dic": "auto",
+    "max_roi_crossings": 2,
+    "forward_backward": 0.2,
+    "robust": 3.0,
+    "features_per_roi": 8,
+    "window": 11,
+    "levels": 3,
+    "smoothing": 0.7,
+}
 
 
 def _import_cv2():
@@ -192,23 +211,10 @@ def pattern_vectors(
     return xy_a[keep], xy_b[keep]
 
 
-@cache
-def _dic_defaults() -> dict:
-    """The DIC options of :func:`measure_displacements` with their
-    defaults: its signature is their one definition."""
-    # Imported here because displacement imports this module
-    from kikuchipy_geomdic.patterns.displacement import measure_displacements
-
-    params = inspect.signature(measure_displacements).parameters
-    own = ("simulated", "experimental", "seed", "keep_vectors", "chunk_size")
-    return {k: p.default for k, p in params.items() if k not in own}
-
-
 def _dic_options(options) -> dict:
     """*options* completed with the defaults; an unknown name raises as a
     misspelt keyword argument would."""
-    defaults = _dic_defaults()
-    unknown = sorted(set(options) - set(defaults))
+    unknown = sorted(set(options) - set(_DIC_DEFAULTS))
     if unknown:
-        raise TypeError(f"Unknown DIC option(s) {unknown}: use {list(defaults)}")
-    return {**defaults, **options}
+        raise TypeError(f"Unknown DIC option(s) {unknown}: use {list(_DIC_DEFAULTS)}")
+    return {**_DIC_DEFAULTS, **options}

@@ -22,8 +22,8 @@ from orix.crystal_map import CrystalMap
 from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.calibration.refinement import refine_geometry_dic
-from kikuchipy_geomdic.geometry.maps import flat_index, navigation_shape
-from kikuchipy_geomdic.indexing.reindex import VARIANT_SIGNIFICANCE, reindex, usable_points
+from kikuchipy_geomdic.geometry.maps import flat_index, navigation_shape, usable_points
+from kikuchipy_geomdic.indexing.reindex import VARIANT_SIGNIFICANCE, reindex
 from kikuchipy_geomdic.indexing.variants import VARIANT_NAMES, variant_operators
 from kikuchipy_geomdic.patterns.phases import check_phase, phases_match, replace_phase
 from kikuchipy_geomdic.validation import synthetic

@@ -13,6 +13,7 @@ Patterns are 120 x 120 px simulated from the dynamical Si master pattern
 at PC (0.5, 0.3, 0.6), sample tilt 70 deg, 20 kV.
 """
 
+import inspect
 import sys
 import warnings
 
@@ -29,7 +30,7 @@ from kikuchipy_geomdic.geometry import forward_map
 from kikuchipy_geomdic.patterns import displacement as dsp
 from kikuchipy_geomdic.patterns.roi import roi_average
 from kikuchipy_geomdic.patterns.simulation import simulate_patterns
-from kikuchipy_geomdic.patterns.vectors import resolve_backend
+from kikuchipy_geomdic.patterns.vectors import _DIC_DEFAULTS, pattern_vectors, resolve_backend
 
 SHAPE = (120, 120)
 PC_A = (0.5, 0.3, 0.6)
@@ -417,3 +418,14 @@ def test_no_features_at_all(dic):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             dsp.measure_displacements(ramp, ramp + 1, rois=(4, 4), dic=dic)
+
+
+def test_dic_options_are_measure_displacements():
+    # pattern_vectors completes its options with the defaults that
+    # measure_displacements' signature shows, in its order
+    params = inspect.signature(dsp.measure_displacements).parameters
+    own = ("simulated", "experimental", "seed", "keep_vectors", "chunk_size")
+    options = [(k, p.default) for k, p in params.items() if k not in own]
+    assert options == list(_DIC_DEFAULTS.items())
+    with pytest.raises(TypeError, match=r"Unknown DIC option\(s\) \['rios'\]"):
+        pattern_vectors(np.ones((60, 60)), np.ones((60, 60)), rios=(2, 2))
