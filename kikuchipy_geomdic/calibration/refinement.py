@@ -33,6 +33,7 @@ and calibration.
 from __future__ import annotations
 
 import functools
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from typing import Any
@@ -393,6 +394,22 @@ def refine_geometry_dic(
         )
         solved, _ = solved_parameters(names)
         standard_errors = _named_errors(names, np.full(len(solved), np.inf))
+    if matched and not outcome.converged and _unmoved(outcome.state.geometry, geometry0, names):
+        # Standard errors at a start no step could leave describe the
+        # start's linearisation, not the geometry (a BaTiO3 domain map from
+        # users' starts: pcy and pcz reported at 3-4e-4, 1.5e-2 off)
+        warnings.warn(
+            "The calibration did not move from its start: no step lowered the DIC "
+            "displacement, so these patterns and starting orientations do not determine the "
+            "geometry from there. The result is the start, marked not converged, with infinite "
+            "standard errors. Try a start closer to the truth, more or better patterns, or "
+            "orientation_model='crystal' for one crystal",
+            UserWarning,
+            stacklevel=2,
+        )
+        solved, _ = solved_parameters(names)
+        standard_errors = _named_errors(names, np.full(len(solved), np.inf))
+        adequacy = {}
     rotations, scores = _final_orientations(problem, outcome.state, solver, refine_kwargs)
     return _build_result(
         problem,
@@ -408,6 +425,11 @@ def refine_geometry_dic(
         standard_errors,
         adequacy,
     )
+
+
+def _unmoved(geometry: MapGeometry, geometry0: MapGeometry, names) -> bool:
+    """Whether no parameter among *names* left its start."""
+    return bool(np.array_equal(geometry.values(names), geometry0.values(names)))
 
 
 def _static_background_note(signal, problem, geometry) -> str:

@@ -1,0 +1,177 @@
+"""The crystal orientation model, the systematic standard errors and the
+failure path, against ground truth."""
+
+import warnings
+
+import numpy as np
+import pytest
+from orix.quaternion import Rotation
+
+from kikuchipy_geomdic.calibration._crystal import NotOneCrystalError, _one_crystal
+from kikuchipy_geomdic.calibration._systematic import _region_errors
+from kikuchipy_geomdic.calibration.solve import solve_joint
+from kikuchipy_geomdic.indexing.variants import variant_operators
+from kikuchipy_geomdic.validation import synthetic
+
+
+def _angle_to(rot: Rotation, target: Rotation, symmetry) -> np.ndarray:
+    """Angles (deg) of *rot* from *target* modulo the crystal's rotations."""
+    s = Rotation(symmetry.proper_subgroup).flatten()
+    return np.rad2deg(np.stack([(~target * (si * rot)).angle for si in s], axis=1).min(axis=1))
+
+
+@pytest.fixture(scope="module")
+def stripes():
+    """A BaTiO3 stripe map whose starts are a random variant per point,
+    2 deg scatter, a 1.5 deg common error and three points 30 deg off."""
+    sm = synthetic.synthetic_map("BaTiO3", (8, 8), "stripes", shape=(30, 30), seed=3)
+    rng = np.random.default_rng(0)
+    ops = variant_operators()
+    drawn = rng.integers(6, size=64)
+    start = ops[drawn] * ~ops[sm.xmap.prop["variant"]] * sm.xmap.rotations.flatten()
+    v = rng.normal(scale=np.deg2rad(2 / np.sqrt(3)), size=(64, 3))
+    v += np.deg2rad([1.5, 0, 0])
+    v[[5, 20, 40]] = np.deg2rad([30.0, 0, 0])
+    from kikuchipy_geomdic.geometry import rotations_from_vectors
+
+    return sm, start * rotations_from_vectors(v)
+
+
+def test_one_crystal_from_users_starts(stripes):
+    sm, start = stripes
+    pg = sm.xmap.phases[0].point_group
+    crystal, why = _one_crystal(start, pg, variant_operators()[1:])
+    assert crystal is not None, why
+    assert 0.85 <= crystal.fraction <= 0.97  # the three far points are out
+    anchors = crystal.anchors(start)
+    # Every anchor is the true orientation's variant family, the common
+    # error of the starts (1.5 deg) and the parent's mean error aside
+    truth = sm.xmap.rotations.flatten()
+    ops = variant_operators()
+    family = np.stack(
+        [_angle_to(anchors, op * ~ops[sm.xmap.prop["variant"]] * truth, pg) for op in ops],
+        axis=1,
+    ).min(axis=1)
+    # One common error: the starts' mean, not each point's own (2 deg
+    # scatter, three points 30 deg off)
+    assert np.median(family) < 2.5
+    assert family.max() - family.min() < 0.2
+    # The parent and the scatter: each anchor has no scatter about it
+    common, dev = crystal.deviations(anchors)
+    assert np.abs(dev).max() < 1e-9
+    # A common rotation of all orientations is the parent's, not scatter
+    turn = Rotation.from_axes_angles([0, 1, 0], np.deg2rad(0.7))
+    common, dev = crystal.deviations(anchors * turn)
+    assert np.rad2deg(np.abs(dev).max()) < 1e-6
+    assert np.rad2deg(2 * np.arccos(min(abs(common[0]), 1.0))) == pytest.approx(0.7, abs=1e-6)
+
+
+def test_not_one_crystal():
+    sm = synthetic.synthetic_map("Si", (6, 6), "grains", shape=(30, 30), seed=0)
+    crystal, why = _one_crystal(
+        sm.start_xmap.rotations.flatten(), sm.xmap.phases[0].point_group, None
+    )
+    assert crystal is None
+    assert "% of the starting orientations are within 5 deg of one parent" in why
+    with pytest.raises(NotOneCrystalError, match="not one crystal"):
+        sm.signal.refine_geometry_dic(
+            sm.start_xmap, sm.start_detector, sm.master_pattern, sm.energy,
+            orientation_model="crystal", show_progressbar=False,
+        )  # fmt: skip
+
+
+def test_two_crystals_are_not_one():
+    sm = synthetic.synthetic_map("Si", (6, 6), "single", shape=(30, 30), seed=0)
+    rot = sm.xmap.rotations.flatten()
+    other = Rotation.from_axes_angles([1, 2, 3], np.deg2rad(25))
+    two = Rotation(np.where(np.arange(36)[:, None] < 25, rot.data, (rot * other).data))
+    crystal, why = _one_crystal(two, sm.xmap.phases[0].point_group, None)
+    assert crystal is None
+    assert "another orientation holds 31 %" in why
+
+
+def test_common_rotation_in_the_joint_solve():
+    """One crystal: a rotation all patterns share and a small scatter. Tied
+    by the scatter prior about their common rotation, the geometry comes out;
+    a prior about the starts instead pulls it off."""
+    rng = np.random.default_rng(1)
+    n, m, k = 30, 40, 3
+    jg = rng.normal(size=(n, m, k))
+    jr = rng.normal(size=(n, m, 3)) + jg[..., :1] * 0.8  # a PC change is almost a rotation
+    common = np.array([0.02, -0.01, 0.015])
+    scatter = rng.normal(scale=2e-4, size=(n, 3))
+    p = np.array([1e-2, -5e-3, 2e-3])
+    b = -(jg @ p + np.einsum("nmk,nk->nm", jr, common + scatter))
+    b += rng.normal(scale=1e-3, size=(n, m))
+    w = np.full((n, m), 1e6)
+    tied = solve_joint(jg, jr, b, w, prior=2e-4, common=True)
+    assert np.abs(tied.delta - p).max() < 4 * tied.standard_errors.max()
+    assert np.abs(tied.rotations - (common + scatter)).max() < 1e-3
+    pinned = solve_joint(jg, jr, b, w, prior=2e-4)
+    assert np.abs(pinned.delta - p).max() > 10 * tied.standard_errors.max()
+    with pytest.raises(ValueError, match="common rotation needs a prior"):
+        solve_joint(jg, jr, b, w, common=True)
+
+
+def test_region_errors_see_a_misfit_the_regions_share_unequally():
+    rng = np.random.default_rng(2)
+    n, ny, nx, k = 20, 8, 8, 2
+    p = ny * nx
+    jg = rng.normal(size=(n, p, k))
+    jr = rng.normal(size=(n, p, 3))
+    w = np.full((n, p), 1e4)
+    noise = rng.normal(scale=1e-2, size=(n, p))
+    kw = dict(prior=1e-3, common=True, shape=(ny, nx), offsets=np.zeros((n, 3)))
+    clean = _region_errors(noise, jg, jr, w, kw["offsets"], kw["prior"], True, kw["shape"])
+    # The top half of the detector pulls parameter 0 one way, the bottom
+    # the other: a misfit no pattern-to-pattern variance sees
+    pull = np.where(np.arange(p) < p // 2, 1.0, -1.0) * 0.05
+    biased = noise - jg[..., 0] * pull[None]
+    sys = _region_errors(biased, jg, jr, w, kw["offsets"], kw["prior"], True, kw["shape"])
+    se = solve_joint(jg, jr, noise, w, prior=1e-3, common=True).standard_errors
+    assert clean[0] < 2 * se[0]
+    assert sys[0] > 0.02
+
+
+@pytest.mark.slow
+def test_crystal_model_on_a_si_single_crystal():
+    """A Si single crystal, camera patterns, orientations indexed at a
+    start 1.5-3 % off: the crystal model recovers the PC, says which model
+    it used and holds the angles it does not determine at their start."""
+    sm = synthetic.synthetic_map(
+        "Si", (6, 6), "single", shape=(60, 60), seed=4, start="indexed",
+        perturbation={"pcx": 0.015, "pcy": -0.015, "pcz": 0.02},
+    )  # fmt: skip
+    res = sm.signal.refine_geometry_dic(
+        sm.start_xmap, sm.start_detector, sm.master_pattern, sm.energy,
+        parameters=["pcx", "pcy", "pcz", "azimuthal"], points=36,
+        orientation_model="auto", show_progressbar=False,
+    )  # fmt: skip
+    assert res.orientation_model == "crystal"
+    truth = sm.geometry.as_dict()
+    for n in ("pcx", "pcy", "pcz"):
+        err = res.parameters[n] - truth[n]
+        assert abs(err) < 3e-4, (n, err)
+        assert abs(err) <= 3 * res.standard_errors[n], (n, err, res.standard_errors[n])
+    if "azimuthal" in res.undetermined:
+        assert res.parameters["azimuthal"] == sm.start_geometry.azimuthal
+    assert res.crystal["scatter"] < 0.2
+    parent = res.crystal["parent"]
+    pg = sm.xmap.phases[0].point_group
+    assert _angle_to(parent, sm.xmap.rotations.flatten()[:1], pg)[0] < 0.5
+
+
+def test_a_calibration_that_cannot_move_says_so():
+    sm = synthetic.synthetic_map("Si", (4, 4), shape=(40, 40), seed=0)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = sm.signal.refine_geometry_dic(
+            sm.start_xmap, sm.start_detector, sm.master_pattern, sm.energy,
+            parameters=["pcx", "pcy", "pcz"], max_iterations=0, full_field=False,
+            show_progressbar=False,
+        )  # fmt: skip
+    assert not res.converged
+    assert all(np.isinf(res.standard_errors[n]) for n in ("pcx", "pcy", "pcz"))
+    start = sm.start_geometry.as_dict()
+    assert res.parameters == pytest.approx({n: start[n] for n in res.parameters}, abs=1e-12)
+    assert any("did not move from its start" in str(w.message) for w in caught)
