@@ -381,6 +381,31 @@ def refine_geometry_dic(
     outcome, matched = _check_matched(
         outcome, functools.partial(_static_background_note, signal, problem, geometry0)
     )
+    outcome, standard_errors, adequacy = _failures(
+        problem, outcome, matched, standard_errors, adequacy, geometry0
+    )
+    rotations, scores = _final_orientations(problem, outcome.state, solver, refine_kwargs)
+    return _build_result(
+        problem,
+        outcome,
+        rotations,
+        scores,
+        detector,
+        signal,
+        nav,
+        geometry0,
+        orientation_prior,
+        solver,
+        standard_errors,
+        adequacy,
+    )
+
+
+def _failures(problem, outcome, matched, standard_errors, adequacy, geometry0):
+    """The outcome, standard errors and adequacy, with infinite standard
+    errors where the patterns did not determine the geometry: features
+    that did not match, or a start no step could leave."""
+    names = problem.parameters
     if not matched and not adequacy:
         # Steps on fields of unmatched features follow the noise's matches,
         # so the result is the start, whose own uncertainty applies (Si,
@@ -405,26 +430,12 @@ def refine_geometry_dic(
             "standard errors. Try a start closer to the truth, more or better patterns, or "
             "orientation_model='crystal' for one crystal",
             UserWarning,
-            stacklevel=2,
+            stacklevel=3,
         )
         solved, _ = solved_parameters(names)
         standard_errors = _named_errors(names, np.full(len(solved), np.inf))
         adequacy = {}
-    rotations, scores = _final_orientations(problem, outcome.state, solver, refine_kwargs)
-    return _build_result(
-        problem,
-        outcome,
-        rotations,
-        scores,
-        detector,
-        signal,
-        nav,
-        geometry0,
-        orientation_prior,
-        solver,
-        standard_errors,
-        adequacy,
-    )
+    return outcome, standard_errors, adequacy
 
 
 def _unmoved(geometry: MapGeometry, geometry0: MapGeometry, names) -> bool:

@@ -365,13 +365,10 @@ def solve_joint(
         sensitivity, is below this are taken as exactly undetermined and
         get no update (minimum norm), as in :func:`solve_update`.
     common
-        Add a rotation :math:`\Omega` common to all patterns as three
-        more global unknowns: every pattern turns by
-        :math:`\Omega + \delta\omega_i` and the *prior* holds only the
-        :math:`\omega_i + \delta\omega_i` about it, the scatter of one
-        crystal's orientations about its parent (requires a *prior*).
-        :math:`\Omega` is eliminated from the geometry's covariance and
-        added to :attr:`JointUpdate.rotations`.
+        A rotation :math:`\Omega` common to all patterns is three more
+        unknowns; the *prior* (required) holds each pattern's scatter
+        :math:`\omega_i + \delta\omega_i` about it (one crystal).
+        :math:`\Omega` is added to :attr:`JointUpdate.rotations`.
 
     Returns
     -------
@@ -399,11 +396,10 @@ def solve_joint(
 
 @dataclass(frozen=True, eq=False)
 class JointSystem:
-    """The normal equations of :func:`solve_joint` without the residual:
-    built once (:meth:`build`) for Jacobians and weights that serve
-    several residuals (:meth:`solve`), as the full field's frozen
-    Jacobians do. Forming the weighted products is most of a solve's
-    cost on a full-field system."""
+    """The normal equations of :func:`solve_joint` without the residual,
+    built once (:meth:`build`) for several residuals (:meth:`solve`), as
+    the full field's frozen Jacobians serve: forming the weighted products
+    is most of a full-field solve's cost."""
 
     jg: np.ndarray
     jr: np.ndarray
@@ -422,9 +418,7 @@ class JointSystem:
     v: np.ndarray
     keep: np.ndarray
     n_rot: int
-    #: Geometry parameters K; with a common rotation the system holds
-    #: K + 3 global unknowns, the last three that rotation
-    k: int
+    k: int  # geometry parameters; a common rotation's three follow
 
     @classmethod
     def build(
@@ -441,11 +435,9 @@ class JointSystem:
         Parameters
         ----------
         j_geo, j_rot, weights, prior, rtol, common
-            As in :func:`solve_joint`: geometry Jacobians (N, M, K),
-            rotation Jacobians (N, M, 3), inverse variances (N, M), the
-            orientation prior (radians or None), the tolerance below
-            which a direction counts as undetermined and whether a
-            rotation common to all patterns is a global unknown.
+            As in :func:`solve_joint`: Jacobians (N, M, K) and (N, M, 3),
+            inverse variances (N, M), the prior (radians or None), the
+            tolerance of undetermined directions, the common rotation.
 
         Returns
         -------
@@ -467,13 +459,9 @@ class JointSystem:
         if prior is not None and not (np.isfinite(p) and prior > 0):
             raise ValueError(f"prior must be a positive standard deviation, not {prior}")
         k = jg.shape[2]
-        if common:
-            if prior is None:
-                raise ValueError(
-                    "a common rotation needs a prior: without one it is every pattern's "
-                    "own rotation too"
-                )
-            # The common rotation moves every pattern as its own does
+        if common and prior is None:
+            raise ValueError("a common rotation needs a prior: else it is every pattern's own")
+        if common:  # it moves every pattern as the pattern's own does
             jg = np.concatenate([jg, jr], axis=2)
         # Batched matrix products (BLAS): einsum over the M vectors or
         # pixels of a full-field system took most of its time
@@ -590,16 +578,12 @@ class JointSystem:
         rot_sigma = np.sqrt(factor * np.clip(np.diagonal(self.a_inv, axis1=1, axis2=2), 0, None))
         reduced = np.sqrt(np.clip(np.diag(self.s_red), 0, None))
         k = self.k
-        if delta.size > k:
-            # The common rotation: part of every pattern's, marginalised
-            # out of the geometry's covariance
-            dw = dw + delta[k:]
-            delta, cov, model = delta[:k], cov[:k, :k], model[:k, :k]
-            reduced, full = reduced[:k], full[:k]
-            null = null[:k]
-            if null.size:
-                lengths = np.linalg.norm(null, axis=0)
-                null = null[:, lengths > 1e-9] / lengths[lengths > 1e-9]
+        # A common rotation is part of every pattern's, marginalised out
+        dw = dw + delta[k:] if delta.size > k else dw
+        reduced, full, null = reduced[:k], full[:k], null[:k]
+        delta, cov, model = delta[:k], cov[:k, :k], model[:k, :k]
+        lengths = np.linalg.norm(null, axis=0)
+        null = null[:, lengths > 1e-9] / lengths[lengths > 1e-9]
         return JointUpdate(
             delta=delta,
             rotations=dw,

@@ -137,6 +137,7 @@ def _refine(args: argparse.Namespace) -> int:
         solver=args.solver,
         full_field=False if args.dic_only else None,
         orientation_prior=args.orientation_prior,
+        orientation_model=args.orientation_model,
         rois=tuple(args.rois),
         max_iterations=args.max_iterations,
         phase=phase_id,
@@ -237,6 +238,15 @@ def _refine_parser(sub, common: argparse.ArgumentParser) -> None:
         metavar="DEG",
         help="RMS error of the starting orientations, believed independent and "
         "zero-mean (default: none; the angles are then measured from the PC field only)",
+    )
+    refine.add_argument(
+        "--orientation-model",
+        choices=("free", "crystal", "auto"),
+        default="free",
+        help="free (default): a rotation per point; crystal: the map is one crystal (a "
+        "wafer, a domain map), one parent orientation in each point's variant with a small "
+        "scatter (--orientation-prior, default 0.1 deg); auto: crystal where the starting "
+        "orientations are one crystal, else free",
     )
     refine.add_argument(
         "--points",

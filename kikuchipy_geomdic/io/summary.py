@@ -110,7 +110,8 @@ def summary_from_result(result, **inputs) -> dict[str, Any]:
         ``conventions`` (one
         :func:`~kikuchipy_geomdic.io.conventions.export_geometry` record per
         convention), ``refined_parameters``, ``degenerate``,
-        ``converged``, ``calibration`` (points, NCC, displacement),
+        ``converged``, ``orientation_model``, ``calibration`` (points,
+        NCC, displacement),
         ``history`` and ``inputs``.
 
     Examples
@@ -141,6 +142,7 @@ def summary_from_result(result, **inputs) -> dict[str, Any]:
         "refined_parameters": list(result.parameter_names),
         "degenerate": list(result.degenerate),
         "converged": bool(result.converged),
+        "orientation_model": getattr(result, "orientation_model", "free"),
         "calibration": {
             "points": len(result.points),
             "points_row_col": np.asarray(result.points).tolist(),

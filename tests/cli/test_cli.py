@@ -1167,3 +1167,17 @@ def test_pseudo_symmetry_errors(case, command, data, tmp_path, capsys):
     (line,) = err.strip().splitlines()
     assert line.startswith("kikuchipy-geomdic: error: ") and message in line, line
     assert not (tmp_path / "o").exists()
+
+
+def test_orientation_model(tmp_path, data, monkeypatch, capsys):
+    """--orientation-model reaches the calibration; asked of a polycrystal,
+    the crystal model says so and nothing is written."""
+    d, _ = data
+    code, _, err = run(_refine_argv(d, tmp_path / "o", "--orientation-model", "crystal"), capsys)
+    assert code != 0
+    assert "not one crystal" in err
+    assert not (tmp_path / "o" / "summary.json").exists()
+    seen = _stop_at_refinement(monkeypatch)
+    code, _, err = run(_refine_argv(d, tmp_path / "p", "--orientation-model", "auto"), capsys)
+    assert code == 130, err
+    assert seen["kwargs"]["orientation_model"] == "auto"
