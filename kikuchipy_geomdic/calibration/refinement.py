@@ -187,7 +187,7 @@ def refine_geometry_dic(
         common rotation, and the angles are seen only through the PC
         field across the map. With the crystal model: the RMS scatter of
         the orientations about their parent (default
-        :data:`~kikuchipy_geomdic.calibration._crystal.CRYSTAL_SCATTER`).
+        ``CRYSTAL_SCATTER``, 0.1 deg).
     orientation_model
         "free" (default): a rotation per point, for any map. "crystal":
         the map is one crystal (a wafer, a domain map): every point is
@@ -198,7 +198,7 @@ def refine_geometry_dic(
         only place the parent (their mode, modulo the crystal symmetry and
         the variants): a point's own start error, or a wrong variant, is
         not carried into the fit. Raises
-        :class:`~kikuchipy_geomdic.calibration._crystal.NotOneCrystalError`
+        ``NotOneCrystalError`` (a ``ValueError``)
         if the starts are not one crystal. "auto": "crystal" where the
         starts are one crystal, else "free". The result says which was
         used (:attr:`GeometryRefinementResult.orientation_model`). Joint

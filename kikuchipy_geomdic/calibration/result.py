@@ -122,8 +122,11 @@ class GeometryRefinementResult:
         the full field's, per parameter (``"dic_step"``) and
         in units of their combined standard errors (``"z"``), whether it passed
         (``"consistent"``; if not, the standard errors are inflated to
-        cover the disagreement) and a sentence saying so
-        (``"verdict"``). Empty when no full field ran.
+        cover the disagreement), a sentence saying so (``"verdict"``) and,
+        with the crystal model, ``"systematic"``: the part of each standard
+        error that a misfit all patterns share adds, from the spread of
+        the full field's solutions on the detector's quadrants, included in
+        :attr:`standard_errors`. Empty when no full field ran.
     orientation_model
         The orientation model used: "free" (a rotation per point) or
         "crystal" (one parent orientation in each point's variant with a
