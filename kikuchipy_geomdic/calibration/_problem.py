@@ -56,8 +56,6 @@ class _Problem:
     lobe: np.ndarray | None = None
     #: The crystal model, if the points are taken as one crystal
     crystal: _Crystal | None = None
-    #: Why the points are not one crystal, if the model was asked of them
-    not_crystal: str = ""
 
     @cached_property
     def arrays(self) -> ori.MasterPatternArrays:
@@ -280,7 +278,7 @@ def _prepare_problem(
     lookup[xmap.id] = np.arange(xmap.size)
     start = Rotation(xmap.rotations.data[lookup[flat_index(pts, nav)]])
     ops = None if ops is None else Rotation(ops).flatten()
-    crystal, why = None, ""
+    crystal = None
     if orientation_model != "free":
         crystal, why = _one_crystal(start, xmap.phases[phase_id].point_group, ops)
         if crystal is None and orientation_model == "crystal":
@@ -310,5 +308,4 @@ def _prepare_problem(
         pseudo_symmetry_ops=ops,
         lobe=_lobe(signal),
         crystal=crystal,
-        not_crystal=why,
     )

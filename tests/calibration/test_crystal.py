@@ -133,7 +133,6 @@ def test_region_errors_see_a_misfit_the_regions_share_unequally():
     assert sys[0] > 0.02
 
 
-@pytest.mark.slow
 def test_crystal_model_on_a_si_single_crystal():
     """A Si single crystal, camera patterns, orientations indexed at a
     start 1.5-3 % off: the crystal model recovers the PC, says which model
