@@ -10,7 +10,7 @@ and calibration.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from typing import Any
 
@@ -20,7 +20,12 @@ from orix.crystal_map import CrystalMap
 from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.calibration._checks import _check_steps
-from kikuchipy_geomdic.calibration._crystal import NotOneCrystalError, _Crystal, _one_crystal
+from kikuchipy_geomdic.calibration._crystal import (
+    NotOneCrystalError,
+    _Crystal,
+    _one_crystal,
+    _other_crystal,
+)
 from kikuchipy_geomdic.calibration._points import _experimental, _select_points
 from kikuchipy_geomdic.calibration._processing import _lobe
 from kikuchipy_geomdic.calibration.jacobian import analytic_jacobian, finite_difference_jacobian
@@ -261,12 +266,14 @@ def _prepare_problem(
     refine_kwargs: Mapping[str, Any] | None,
     pseudo_symmetry_ops: Rotation | None,
     orientation_model: str = "free",
+    geometry0: MapGeometry | None = None,
 ) -> _Problem:
     """Check the steps, select the points, read their patterns and
     starting orientations: the :class:`_Problem` the loops solve. With
     *orientation_model* "crystal" or "auto", the starts are tied to one
-    parent (:func:`_one_crystal`) when they are one crystal; "crystal"
-    raises :class:`NotOneCrystalError` when they are not."""
+    parent when they are one crystal (:func:`_one_crystal`, and by their
+    patterns at *geometry0*, :func:`_other_crystal`); "crystal" raises
+    :class:`NotOneCrystalError` when they are not."""
     steps = _check_steps(names, steps)
     ref_kw = dict(refine_kwargs or {})
     ops = ref_kw.pop("pseudo_symmetry_ops", None)
@@ -281,17 +288,7 @@ def _prepare_problem(
     crystal = None
     if orientation_model != "free":
         crystal, why = _one_crystal(start, xmap.phases[phase_id].point_group, ops)
-        if crystal is None and orientation_model == "crystal":
-            raise NotOneCrystalError(
-                f"orientation_model='crystal' was asked of a map that is not one crystal: {why}. "
-                "Calibrate a polycrystal (or several crystals) with orientation_model='free', "
-                "or one crystal's points only (points=...)"
-            )
-        if crystal is not None:
-            # The parent in each point's variant: the starts' own errors
-            # (absorbed geometry, misindexed points) are left behind
-            start = crystal.anchors(start)
-    return _Problem(
+    problem = _Problem(
         experimental=exp,
         points=pts,
         start_rotations=start,
@@ -307,5 +304,22 @@ def _prepare_problem(
         refine_kwargs=ref_kw,
         pseudo_symmetry_ops=ops,
         lobe=_lobe(signal),
-        crystal=crystal,
     )
+    if crystal is not None:
+        # Points far from the parent are misindexed or another crystal:
+        # their patterns tell which
+        why = _other_crystal(
+            problem.ncc(geometry0, start), problem.ncc(geometry0, crystal.anchors(start))
+        )
+        crystal = None if why else crystal
+    if crystal is None and orientation_model == "crystal":
+        raise NotOneCrystalError(
+            f"orientation_model='crystal' was asked of a map that is not one crystal: {why}. "
+            "Calibrate a polycrystal (or several crystals) with orientation_model='free', "
+            "or one crystal's points only (points=...)"
+        )
+    if crystal is None:
+        return problem
+    # The parent in each point's variant: the starts' own errors (absorbed
+    # geometry, misindexed points) are left behind
+    return replace(problem, start_rotations=crystal.anchors(start), crystal=crystal)

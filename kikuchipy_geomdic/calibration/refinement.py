@@ -335,6 +335,7 @@ def refine_geometry_dic(
     dic_kw.update(dic_kwargs or {})
     if dic_kw["binning"] is None:
         dic_kw["binning"] = 1 if not full_field else _binning(signal.axes_manager.signal_shape)
+    geometry0 = MapGeometry.from_detector(detector, _step_sizes(signal), nav)
     problem = _prepare_problem(
         signal,
         xmap,
@@ -349,10 +350,10 @@ def refine_geometry_dic(
         refine_kwargs,
         pseudo_symmetry_ops,
         orientation_model if solver == "joint" else "free",
+        geometry0,
     )
     if problem.crystal is not None and orientation_prior is None:
         orientation_prior = CRYSTAL_SCATTER
-    geometry0 = MapGeometry.from_detector(detector, _step_sizes(signal), nav)
     dic_stage = functools.partial(
         _dic_stage,
         geometry0=geometry0,
