@@ -23,7 +23,7 @@ from kikuchipy_geomdic.calibration._dic_fit import _expand, _prior_per_axis, _so
 from kikuchipy_geomdic.calibration._problem import _LoopOutcome, _Problem, _step_record
 from kikuchipy_geomdic.calibration._processing import _estimate_processing
 from kikuchipy_geomdic.calibration._progress import _Progress
-from kikuchipy_geomdic.calibration._systematic import _region_errors
+from kikuchipy_geomdic.calibration._systematic import _quadrants, _region_errors
 from kikuchipy_geomdic.calibration.jacobian import INTENSITY_STEPS, _intensity_chain
 from kikuchipy_geomdic.calibration.solve import JointSystem, solve_joint
 from kikuchipy_geomdic.calibration.uncertainty import (
@@ -203,7 +203,7 @@ def _full_field(problem, state, prior, first_it, report) -> _FullField:
             system.offsets,
             _prior_per_axis(prior),
             system.common,
-            problem.experimental.shape[1:],
+            _quadrants(problem.experimental.shape[1:]),
         )
     se = np.sqrt(np.clip(np.diag(cov), 0, None) + systematic**2)
     moved = _solved_values(geometry, solved, split) - _solved_values(start, solved, split)

@@ -321,5 +321,8 @@ def _prepare_problem(
     if crystal is None:
         return problem
     # The parent in each point's variant: the starts' own errors (absorbed
-    # geometry, misindexed points) are left behind
-    return replace(problem, start_rotations=crystal.anchors(start), crystal=crystal)
+    # geometry, misindexed points) are left behind, and the variant is the
+    # one the pattern shows, not the start's (an indexer's is random)
+    problem = replace(problem, start_rotations=crystal.anchors(start), crystal=crystal)
+    anchors = problem.best_variants(geometry0, problem.start_rotations)
+    return replace(problem, start_rotations=anchors)

@@ -1,7 +1,8 @@
 """The systematic part of the full field's standard errors: what the
 patterns' shared misfit does to the geometry, measured by solving the
 converged linear system on separate regions of the detector
-(:func:`_region_errors`).
+(:func:`_region_errors`), the full field's pixels or the DIC stage's ROIs
+grouped into the detector's quadrants (:func:`_quadrants`).
 
 A misfit every pattern shares (band profiles changed by the processing,
 another simulator's master pattern, a CIF whose lattice is not the
@@ -27,6 +28,15 @@ from kikuchipy_geomdic.calibration.solve import solve_joint
 REGIONS = (2, 2)
 
 
+def _quadrants(shape: tuple[int, int], repeat: int = 1) -> np.ndarray:
+    """Region label (P,) of each of a row-major grid's *shape* cells (pixels
+    or ROIs), each repeated *repeat* times (an ROI's two components)."""
+    ny, nx = shape
+    rows = np.minimum(np.arange(ny) * REGIONS[0] // ny, REGIONS[0] - 1)
+    cols = np.minimum(np.arange(nx) * REGIONS[1] // nx, REGIONS[1] - 1)
+    return np.repeat((rows[:, None] * REGIONS[1] + cols[None, :]).ravel(), repeat)
+
+
 def _region_errors(
     residual: np.ndarray,
     jg: np.ndarray,
@@ -35,7 +45,7 @@ def _region_errors(
     offsets: np.ndarray,
     prior: float | None,
     common: bool,
-    shape: tuple[int, int],
+    region: np.ndarray,
 ) -> np.ndarray:
     """Systematic standard errors (K,) of the geometry from the spread of
     its solutions on the detector's :data:`REGIONS`.
@@ -43,18 +53,15 @@ def _region_errors(
     Each region's solution ``d_r`` and covariance ``C_r`` come from the
     linear system of all the pixels (*residual* (N, P), Jacobians
     *jg* (N, P, K) and *jr* (N, P, 3), *weights* (N, P), the orientation
-    prior's *offsets* and *prior*, *common* rotation) with the other
-    pixels' weights set to zero; ``d_0``, ``C_0`` from all of them. Where
+    prior's *offsets* and *prior*, *common* rotation) with the weights of
+    the pixels (or components) outside the *region* (P,, labels from
+    :func:`_quadrants`) set to zero; ``d_0``, ``C_0`` from all of them. Where
     the model fits, ``d_r - d_0`` scatters with covariance
     ``C_r - C_0``; the excess, ``e = mean_r((d_r - d_0)^2 - (C_r - C_0))``,
     is the regions' own biases' scatter, and the whole detector's bias,
     their mean, has the systematic variance ``max(0, e) / (R - 1)`` per
     parameter for *R* regions.
     """
-    ny, nx = shape
-    rows = np.minimum(np.arange(ny) * REGIONS[0] // ny, REGIONS[0] - 1)
-    cols = np.minimum(np.arange(nx) * REGIONS[1] // nx, REGIONS[1] - 1)
-    region = (rows[:, None] * REGIONS[1] + cols[None, :]).ravel()
     kw = dict(prior=prior, offsets=offsets, common=common)
     all_ = solve_joint(jg, jr, residual, weights, **kw)
     excess = []

@@ -420,10 +420,14 @@ def _failures(problem, outcome, matched, standard_errors, adequacy, geometry0):
         )
         solved, _ = solved_parameters(names)
         standard_errors = _named_errors(names, np.full(len(solved), np.inf))
-    if matched and not outcome.converged and _unmoved(outcome.state.geometry, geometry0, names):
+    if matched and _unmoved(outcome.state.geometry, geometry0, names):
         # Standard errors at a start no step could leave describe the
         # start's linearisation, not the geometry (a BaTiO3 domain map from
-        # users' starts: pcy and pcz reported at 3-4e-4, 1.5e-2 off)
+        # users' starts: pcy and pcz reported at 3-4e-4, 1.5e-2 off). A
+        # loop "converges" there too when every parameter is poorly
+        # determined and none would move significantly (a Si crystal whose
+        # patterns matched in a third of the ROIs)
+        outcome = replace(outcome, converged=False)
         warnings.warn(
             "The calibration did not move from its start: no step lowered the DIC "
             "displacement, so these patterns and starting orientations do not determine the "
