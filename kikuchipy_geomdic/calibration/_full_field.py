@@ -34,6 +34,7 @@ from kikuchipy_geomdic.calibration.uncertainty import (
     _inflated,
     _insignificant_moves,
     _named_errors,
+    _total,
 )
 from kikuchipy_geomdic.geometry import MapGeometry, rotations_from_vectors, solved_parameters
 
@@ -76,9 +77,12 @@ def _full_field_stage(
     run again unbinned (*dic_stage*) unless the user chose the *binning*.
     Returns the outcome, the standard errors (None: the DIC stage's at the
     end) and the adequacy."""
-    dic_update = _dic_update(problem, outcome.state, orientation_prior)
-    standard_errors = _named_errors(problem.parameters, dic_update.standard_errors)
-    loose = [n for n in _PC if standard_errors.get(n, 0) > DETERMINACY_LIMITS[n]]
+    dic_update, systematic = _dic_update(problem, outcome.state, orientation_prior)
+    # Whether the full field's basin is reached is the statistics' say;
+    # what is reported without it includes what the patterns share
+    statistical = _named_errors(problem.parameters, dic_update.standard_errors)
+    standard_errors = _named_errors(problem.parameters, _total(dic_update, systematic))
+    loose = [n for n in _PC if statistical.get(n, 0) > DETERMINACY_LIMITS[n]]
     if guarded and full_field and loose:
         # The full field needs a start in its basin, which a PC the
         # DIC stage leaves undetermined is not (measured: at 0.3

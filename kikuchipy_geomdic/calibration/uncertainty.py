@@ -10,7 +10,6 @@ and calibration.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -95,9 +94,11 @@ def _named_errors(names: Sequence[str], solved_errors) -> dict[str, float]:
     return {k: se[k] for k in (*names, TILT_DIFFERENCE) if k in se}
 
 
-def _dic_update(problem: _Problem, state: _State, prior) -> JointUpdate:
+def _dic_update(problem: _Problem, state: _State, prior) -> tuple[JointUpdate, np.ndarray]:
     """The DIC stage's joint solve with every parameter free at *state*:
-    the step it would take from there and its standard errors."""
+    the step it would take from there and its (statistical) standard
+    errors; and the systematic standard errors (K,) that add to them
+    (zero but for the crystal model)."""
     solved, _ = solved_parameters(problem.parameters)
     linear = _linearise(problem, state.geometry, state.field, solved)
     offsets = problem.rotation_offsets(state.rotations)
@@ -111,7 +112,7 @@ def _dic_update(problem: _Problem, state: _State, prior) -> JointUpdate:
         problem.crystal is not None,
     )
     if problem.crystal is None:
-        return update
+        return update, np.zeros(len(solved))
     # One crystal: what the patterns share, from the ROIs' quadrants (as
     # the full field's pixels'). Without it the DIC stage's errors missed
     # a shared misfit by 8-10 of them on a BaTiO3 domain map whose DIC
@@ -127,13 +128,19 @@ def _dic_update(problem: _Problem, state: _State, prior) -> JointUpdate:
         True,
         _quadrants(state.field.rois, 2),
     )
-    return replace(update, covariance=update.covariance + np.diag(sys**2))
+    return update, sys
 
 
 def _standard_errors(problem: _Problem, state: _State, prior) -> dict[str, float]:
     """Standard errors of every refined parameter at the final state, and
-    of the determined tilt difference, from one joint solve."""
-    return _named_errors(problem.parameters, _dic_update(problem, state, prior).standard_errors)
+    of the determined tilt difference, from one joint solve, the
+    systematic part included."""
+    return _named_errors(problem.parameters, _total(*_dic_update(problem, state, prior)))
+
+
+def _total(update: JointUpdate, systematic: np.ndarray) -> np.ndarray:
+    """Standard errors (K,) of *update* with the *systematic* ones added."""
+    return np.sqrt(update.standard_errors**2 + systematic**2)
 
 
 def _adequacy(
