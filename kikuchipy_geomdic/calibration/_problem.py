@@ -142,6 +142,20 @@ class _Problem:
             return self.crystal.deviations(rotations)[1]
         return rotation_vectors(self.variants(rotations)[1])
 
+    def refined_ncc(self, geometry: MapGeometry, rotations: Rotation) -> np.ndarray:
+        """NCC (N,) of the patterns with their simulations after the
+        *rotations* are refined at *geometry* (Gauss-Newton, coarse to
+        fine, :func:`~kikuchipy_geomdic.indexing.orientation.refine_arrays`)."""
+        det = geometry.detector(self.points)
+        pcs = np.broadcast_to(det.pc.reshape(-1, 3), (rotations.size, 3))
+        return ori.refine_arrays(
+            self.experimental,
+            rotations.data.reshape(-1, 4),
+            pcs,
+            ori.detector_matrix(det),
+            self.arrays,
+        ).scores
+
     def best_variants(self, geometry: MapGeometry, rotations: Rotation) -> Rotation:
         """Return per point the variant ``op * rotation`` its pattern shows.
 
@@ -307,9 +321,11 @@ def _prepare_problem(
     )
     if crystal is not None:
         # Points far from the parent are misindexed or another crystal:
-        # their patterns tell which
+        # their patterns tell which, refined from the parent's variant at
+        # the start geometry (unrefined, a start that absorbed the
+        # geometry's error fits its pattern better than the parent does)
         why = _other_crystal(
-            problem.ncc(geometry0, start), problem.ncc(geometry0, crystal.anchors(start))
+            problem.ncc(geometry0, start), problem.refined_ncc(geometry0, crystal.anchors(start))
         )
         crystal = None if why else crystal
     if crystal is None and orientation_model == "crystal":
