@@ -15,7 +15,7 @@ Panels, every number read from a file:
 (b) does the error bar cover? The largest |error| / standard error of
     pcx, pcy, pcz per map, from the same logs, and the BaTiO3 domain maps
     of ``bench_crystal.py`` with the free and the crystal orientation
-    model (``results/crystal/bench_crystal_bto_seeds01.log``);
+    model (``results/crystal/bench_crystal_*.log``);
 (c) the PC error against dose on a BaTiO3 stripe-domain map
     (``results/variants_picks.log``, dose 0.3 from
     ``variants_picks_dose03.log``), with kikuchipy's Nelder-Mead and
@@ -48,7 +48,7 @@ ROW = re.compile(
     r"(?:\s+(?P<z>[-+\d.]+,[-+\d.]+,[-+\d.]+))?"
 )
 CRYSTAL = re.compile(
-    r"^bto\s+seed (?P<seed>\d+) (?P<model>crystal|free)\s+\|.*max z\s+(?P<z>[\d.]+)"
+    r"^(?P<case>\w+)\s+seed (?P<seed>\d+) (?P<model>crystal|free)\s+\|.*max z\s+(?P<z>[\d.]+)"
 )
 PICKS = re.compile(r"^\s+(?P<dose>[\d.]+)\s+(?P<pc>\d\.\d+e[-+]\d+)\s+[-+]")
 DETECTOR = re.compile(r"^kikuchipy (?P<method>NM|DE) avg\s+\d+\s+\d+\s+(?P<pc>[\d.e+-]+)")
@@ -79,10 +79,13 @@ def realistic_rows() -> list[dict]:
 
 def crystal_rows() -> list[dict]:
     rows = []
-    for line in (RESULTS / "crystal" / "bench_crystal_bto_seeds01.log").read_text().splitlines():
-        m = CRYSTAL.match(line)
-        if m:
-            rows.append(dict(seed=int(m["seed"]), model=m["model"], z=float(m["z"])))
+    for path in sorted((RESULTS / "crystal").glob("bench_crystal_*.log")):
+        for line in path.read_text().splitlines():
+            m = CRYSTAL.match(line)
+            if m and float(m["z"]) > 0:  # 0: infinite standard errors, said so
+                rows.append(
+                    dict(case=m["case"], seed=int(m["seed"]), model=m["model"], z=float(m["z"]))
+                )
     return rows
 
 
@@ -152,8 +155,8 @@ def main() -> None:
         ax.plot(xs, ys, ls="none", alpha=0.85, **styles[method])
     c0 = len(CASES)
     for model, style in (
-        ("free", dict(color="tab:blue", marker="D", label="BaTiO3 domains, free model")),
-        ("crystal", dict(color="tab:green", marker="D", label="BaTiO3 domains, crystal model")),
+        ("free", dict(color="tab:blue", marker="D", label="single crystals, free model")),
+        ("crystal", dict(color="tab:green", marker="D", label="single crystals, crystal model")),
     ):
         sel = [r for r in crystal if r["model"] == model]
         xs = [
@@ -166,7 +169,7 @@ def main() -> None:
     ax.set_yscale("log")
     ax.set_xticks(
         range(len(CASES) + 1),
-        [*(LABELS[c] for c in CASES), "BaTiO3\ndomains"],
+        [*(LABELS[c] for c in CASES), "single\ncrystals"],
         fontsize=7,
     )
     ax.set_ylabel("largest |error| / standard error (pcx, pcy, pcz)")

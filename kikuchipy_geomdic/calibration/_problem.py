@@ -9,6 +9,7 @@ and calibration.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from functools import cached_property
@@ -34,6 +35,10 @@ from kikuchipy_geomdic.geometry.maps import flat_index
 from kikuchipy_geomdic.indexing import orientation as ori
 from kikuchipy_geomdic.indexing.reindex import refine_orientations
 from kikuchipy_geomdic.patterns import displacement as dsp
+
+#: The free orientation model warns when at least this fraction of the
+#: starts lie within 5 deg of one parent: the map looks like one crystal.
+ONE_CRYSTAL_NOTE = 0.6
 
 #: Paper solver: smallest side (px) the patterns are binned down to for
 #: the orientation refinements inside the loop. Orientations refined from
@@ -299,9 +304,20 @@ def _prepare_problem(
     lookup[xmap.id] = np.arange(xmap.size)
     start = Rotation(xmap.rotations.data[lookup[flat_index(pts, nav)]])
     ops = None if ops is None else Rotation(ops).flatten()
-    crystal = None
-    if orientation_model != "free":
-        crystal, why = _one_crystal(start, xmap.phases[phase_id].point_group, ops)
+    crystal, why = _one_crystal(start, xmap.phases[phase_id].point_group, ops)
+    if orientation_model == "free":
+        if crystal is not None and crystal.fraction >= ONE_CRYSTAL_NOTE:
+            warnings.warn(
+                f"{100 * crystal.fraction:.0f} % of the starting orientations are within 5 deg "
+                "of one parent orientation: the map looks like one crystal, where a misfit "
+                "every pattern shares does not average out and the free orientation model's "
+                "standard errors can miss it (on BaTiO3 domain maps by 10-22 of them). "
+                "orientation_model='crystal' ties the points to one parent and adds the "
+                "shared misfit to the standard errors",
+                UserWarning,
+                stacklevel=4,
+            )
+        crystal = None
     problem = _Problem(
         experimental=exp,
         points=pts,
