@@ -284,7 +284,7 @@ def _prepare_problem(
     dic_kwargs: dict,
     refine_kwargs: Mapping[str, Any] | None,
     pseudo_symmetry_ops: Rotation | None,
-    orientation_model: str = "free",
+    orientation_model: str | None = "free",
     geometry0: MapGeometry | None = None,
 ) -> _Problem:
     """Check the steps, select the points, read their patterns and
@@ -292,7 +292,8 @@ def _prepare_problem(
     *orientation_model* "crystal" or "auto", the starts are tied to one
     parent when they are one crystal (:func:`_one_crystal`, and by their
     patterns at *geometry0*, :func:`_other_crystal`); "crystal" raises
-    :class:`NotOneCrystalError` when they are not."""
+    :class:`NotOneCrystalError` when they are not; "free" warns when they
+    look like one crystal; None (the paper's solver) does neither."""
     steps = _check_steps(names, steps)
     ref_kw = dict(refine_kwargs or {})
     ops = ref_kw.pop("pseudo_symmetry_ops", None)
@@ -304,7 +305,9 @@ def _prepare_problem(
     lookup[xmap.id] = np.arange(xmap.size)
     start = Rotation(xmap.rotations.data[lookup[flat_index(pts, nav)]])
     ops = None if ops is None else Rotation(ops).flatten()
-    crystal, why = _one_crystal(start, xmap.phases[phase_id].point_group, ops)
+    crystal, why = None, ""
+    if orientation_model is not None:
+        crystal, why = _one_crystal(start, xmap.phases[phase_id].point_group, ops)
     if orientation_model == "free":
         if crystal is not None and crystal.fraction >= ONE_CRYSTAL_NOTE:
             warnings.warn(
@@ -315,7 +318,7 @@ def _prepare_problem(
                 "orientation_model='crystal' ties the points to one parent and adds the "
                 "shared misfit to the standard errors",
                 UserWarning,
-                stacklevel=4,
+                stacklevel=3,
             )
         crystal = None
     problem = _Problem(

@@ -349,7 +349,7 @@ def refine_geometry_dic(
         dic_kw,
         refine_kwargs,
         pseudo_symmetry_ops,
-        orientation_model if solver == "joint" else "free",
+        orientation_model if solver == "joint" else None,
         geometry0,
     )
     if problem.crystal is not None and orientation_prior is None:

@@ -189,3 +189,22 @@ def test_a_calibration_that_cannot_move_says_so():
     start = sm.start_geometry.as_dict()
     assert res.parameters == pytest.approx({n: start[n] for n in res.parameters}, abs=1e-12)
     assert any("did not move from its start" in str(w.message) for w in caught)
+
+
+def test_the_free_model_says_when_a_map_looks_like_one_crystal():
+    sm = synthetic.synthetic_map("Si", (4, 4), "single", shape=(40, 40), seed=0)
+    with pytest.warns(UserWarning, match="the map looks like one crystal"):
+        sm.signal.refine_geometry_dic(
+            sm.start_xmap, sm.start_detector, sm.master_pattern, sm.energy,
+            parameters=["pcx", "pcy", "pcz"], max_iterations=1, full_field=False,
+            show_progressbar=False,
+        )  # fmt: skip
+    poly = synthetic.synthetic_map("Si", (4, 4), "random", shape=(40, 40), seed=0)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        poly.signal.refine_geometry_dic(
+            poly.start_xmap, poly.start_detector, poly.master_pattern, poly.energy,
+            parameters=["pcx", "pcy", "pcz"], max_iterations=1, full_field=False,
+            show_progressbar=False,
+        )  # fmt: skip
+    assert not any("looks like one crystal" in str(w.message) for w in caught)
