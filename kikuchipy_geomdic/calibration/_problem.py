@@ -341,12 +341,16 @@ def _prepare_problem(
         lobe=_lobe(signal),
     )
     if crystal is not None:
+        # The parent in each point's variant, the one its pattern shows
+        # (an indexer's is random); the starts' own errors (absorbed
+        # geometry, misindexed points) are left behind
+        anchors = problem.best_variants(geometry0, crystal.anchors(start))
         # Points far from the parent are misindexed or another crystal:
-        # their patterns tell which, refined from the parent's variant at
-        # the start geometry (unrefined, a start that absorbed the
-        # geometry's error fits its pattern better than the parent does)
+        # their patterns tell which, the parent's variant refined at the
+        # start geometry (unrefined, a start that absorbed the geometry's
+        # error fits its pattern better than the parent does)
         why = _other_crystal(
-            problem.ncc(geometry0, start), problem.refined_ncc(geometry0, crystal.anchors(start))
+            problem.ncc(geometry0, start), problem.refined_ncc(geometry0, anchors)
         )
         crystal = None if why else crystal
     if crystal is None and orientation_model == "crystal":
@@ -357,9 +361,4 @@ def _prepare_problem(
         )
     if crystal is None:
         return problem
-    # The parent in each point's variant: the starts' own errors (absorbed
-    # geometry, misindexed points) are left behind, and the variant is the
-    # one the pattern shows, not the start's (an indexer's is random)
-    problem = replace(problem, start_rotations=crystal.anchors(start), crystal=crystal)
-    anchors = problem.best_variants(geometry0, problem.start_rotations)
-    return replace(problem, start_rotations=anchors)
+    return replace(problem, start_rotations=anchors, crystal=crystal)
