@@ -81,20 +81,20 @@ def _geometry(case: str, nav, start: str) -> tuple[MapGeometry, dict]:
     return g, pert
 
 
-def _map(case: str, seed: int, dose: float, start: str):
+def _map(case: str, seed: int, dose: float, start: str, static: bool = False):
     nav = (13, 13) if case == "bto" else (10, 10)
     geometry, pert = _geometry(case, nav, start)
     if case.startswith("ni"):
         mp = master_patterns.master_pattern("Ni", kind="ebsdsim")
         sim = master_patterns.master_pattern("Ni", kind="emsoft")
-        kw = dict(orientations="single", camera=Camera(dose=dose))
+        kw = dict(orientations="single", camera=Camera(dose=dose, static=static))
     elif case == "bto":
         mp = master_patterns.master_pattern("BaTiO3", kind="dynamical")
         sim = master_patterns.master_pattern("BaTiO3", kind="ebsdsim")
         kw = dict(orientations="stripes", camera=Camera(dose=dose, static=False))
     else:
         mp = sim = master_patterns.master_pattern("Si", kind="dynamical")
-        kw = dict(orientations="single", camera=Camera(dose=dose))
+        kw = dict(orientations="single", camera=Camera(dose=dose, static=static))
     return synthetic.synthetic_map(
         mp, nav, geometry=geometry, perturbation=pert, seed=seed, start="indexed",
         orientation_error=1.0, simulator=sim, **kw,
