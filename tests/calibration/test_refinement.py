@@ -575,7 +575,8 @@ def test_noisy_map(si_mp):
     free = _refine(sm, orientation_prior=None)
     assert {"tilt", "azimuthal"} <= set(free.undetermined)
     assert free.standard_errors["azimuthal"] > 0.1
-    assert "poorly determined" in repr(free)
+    # Moved by the data, or kept at the start with no claim of precision
+    assert "poorly determined" in repr(free) or "not determined, kept" in repr(free)
     true = sm.geometry.as_dict()
     assert abs(free.parameters["azimuthal"] - true["azimuthal"]) <= (
         3 * free.standard_errors["azimuthal"]
