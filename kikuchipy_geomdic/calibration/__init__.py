@@ -11,6 +11,7 @@ Layer 6: may import every layer below it (:mod:`~kikuchipy_geomdic.geometry`,
 :mod:`~kikuchipy_geomdic.indexing`, :mod:`~kikuchipy_geomdic.plotting`).
 """
 
+from kikuchipy_geomdic.calibration._crystal import NotOneCrystalError
 from kikuchipy_geomdic.calibration.bound import CramerRaoBound, cramer_rao_bound
 from kikuchipy_geomdic.calibration.refinement import calibration_points, refine_geometry_dic
 from kikuchipy_geomdic.calibration.result import GeometryRefinementResult
@@ -19,6 +20,7 @@ __all__ = [
     "CramerRaoBound",
     "cramer_rao_bound",
     "GeometryRefinementResult",
+    "NotOneCrystalError",
     "calibration_points",
     "refine_geometry_dic",
 ]

@@ -198,7 +198,7 @@ def refine_geometry_dic(
         only place the parent (their mode, modulo the crystal symmetry and
         the variants): a point's own start error, or a wrong variant, is
         not carried into the fit. Raises
-        ``NotOneCrystalError`` (a ``ValueError``)
+        :class:`~kikuchipy_geomdic.calibration.NotOneCrystalError` (a ``ValueError``)
         if the starts are not one crystal. "auto": "crystal" where the
         starts are one crystal, else "free". The result says which was
         used (:attr:`GeometryRefinementResult.orientation_model`). Joint
