@@ -30,7 +30,8 @@ Printed per map and model: PC errors, standard errors, the largest PC
 error over its standard error, the angles' errors with their standard
 errors, whether it converged, time; with ``--kikuchipy`` also kikuchipy's
 pattern-wise Nelder-Mead from the same start (PCs averaged, no standard
-errors). Then a summary per kind and model: how many maps are honest
+errors). A model with "/dic" appended (e.g. ``free/dic``) is the DIC
+stage alone (``full_field=False``). Then a summary per kind and model: how many maps are honest
 (every PC error within 3 standard errors, or infinite standard errors
 with converged False), the median and largest PC error.
 
@@ -129,14 +130,18 @@ def _quiet():
 
 
 def _calibrate(sm, model, ops) -> tuple[dict, float]:
-    """One calibration's figures: errors, standard errors, max z, angles."""
+    """One calibration's figures: errors, standard errors, max z, angles.
+    *model*: an orientation model, "/dic" appended for the DIC stage
+    alone (``full_field=False``)."""
     t0 = time.perf_counter()
+    orientation_model, _, stage = model.partition("/")
     try:
         with _quiet():
             res = refine_geometry_dic(
                 sm.signal, sm.start_xmap, sm.start_detector, sm.master_pattern, sm.energy,
-                parameters=PARAMETERS, pseudo_symmetry_ops=ops, orientation_model=model,
-                show_progressbar=False,
+                parameters=PARAMETERS, pseudo_symmetry_ops=ops,
+                orientation_model=orientation_model, show_progressbar=False,
+                full_field=False if stage == "dic" else None,
             )  # fmt: skip
     except NotOneCrystalError:
         return {"refused": True}, time.perf_counter() - t0
@@ -156,11 +161,11 @@ def _honest(r: dict) -> bool:
 
 def _row(label: str, model: str, r: dict, seconds: float) -> str:
     if r["refused"]:
-        return f"{label} {model:7} | refused: not one crystal | {seconds:4.0f} s"
+        return f"{label} {model:11} | refused: not one crystal | {seconds:4.0f} s"
     err, se = r["err"], r["se"]
     angles = " ".join(f"{n[:4]} {err[n]:+.2f}+-{se[n]:.2f}" for n in ("tilt", "azimuthal"))
     return (
-        f"{label} {model:7} | PC err "
+        f"{label} {model:11} | PC err "
         + " ".join(f"{err[n]:+.1e}" for n in PC)
         + " | se "
         + " ".join(f"{se[n]:.1e}" for n in PC)
@@ -176,7 +181,7 @@ def _kikuchipy_row(label: str, sm, ops) -> str:
         pw = pattern_wise_geometry(sm, points, pseudo_symmetry_ops=ops)
     truth, got = sm.geometry.as_dict(), pw.geometry.as_dict()
     return (
-        f"{label} kp NM   | PC err "
+        f"{label} kp NM       | PC err "
         + " ".join(f"{got[n] - truth[n]:+.1e}" for n in PC)
         + f" | no standard errors | {time.perf_counter() - t0:4.0f} s"
     )
@@ -188,11 +193,11 @@ def _summary(results: dict) -> None:
     for (kind, model), rows in sorted(results.items()):
         done = [r for r in rows if not r["refused"]]
         if not done:
-            print(f"{kind:8} {model:7} | {len(rows)} maps, all refused")
+            print(f"{kind:8} {model:11} | {len(rows)} maps, all refused")
             continue
         pc = [max(abs(r["err"][n]) for n in PC) for r in done if np.isfinite(r["se"]["pcx"])]
         print(
-            f"{kind:8} {model:7} | {len(rows)} maps | honest {sum(map(_honest, done))} of "
+            f"{kind:8} {model:11} | {len(rows)} maps | honest {sum(map(_honest, done))} of "
             f"{len(done)} | refused {len(rows) - len(done)} | not determined "
             f"{len(done) - len(pc)} | PC error median {np.median(pc) if pc else np.nan:.1e} "
             f"max {max(pc, default=np.nan):.1e}"
