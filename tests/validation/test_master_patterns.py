@@ -67,9 +67,9 @@ class TestMasterPattern:
         assert np.abs(north - south).mean() > 0.05 * north.std()
 
     def test_ebsdsim_kind(self):
-        coarse = master_patterns.master_pattern("BaTiO3", kind="ebsdsim")
-        assert coarse.data.shape == (2, 129, 129)
-        assert coarse.metadata.General.title == "BaTiO3 dynamical (ebsdsim 0.2.4)"
+        other = master_patterns.master_pattern("BaTiO3", kind="ebsdsim")
+        assert other.data.shape == (2, 201, 201)
+        assert other.metadata.General.title == "BaTiO3 dynamical (ebsdsim 0.2.4)"
         # Si's (and Ni's) dynamical master pattern is ebsdsim's already
         si = master_patterns.master_pattern("Si", kind="ebsdsim")
         assert np.array_equal(si.data, master_patterns.master_pattern("Si").data)

@@ -125,7 +125,7 @@ class TestVariants:
         p0 = simulate_patterns(bto_mp, r, det, 20)
         ncc = np.array([_ncc(simulate_patterns(bto_mp, op * r, det, 20), p0) for op in ops[1:]])
         # 90 deg variants (c axis swapped, c/a = 1.011): measured 0.70-0.80
-        # (mean 0.74); the coarse 129 x 129 ebsdsim pattern gave 0.77-0.80
+        # (mean 0.74); an earlier, coarse 129 x 129 ebsdsim pattern 0.77-0.80
         assert ncc[1:].max() < 0.85 and ncc[1:].mean() < 0.8
         # 180 deg variant (polarity only, dynamical intensities): measured
         # 0.987-0.994 (mean 0.990; ebsdsim: 0.995). 1 means identical
