@@ -36,8 +36,9 @@ from kikuchipy_geomdic.indexing import orientation as ori
 from kikuchipy_geomdic.indexing.reindex import refine_orientations
 from kikuchipy_geomdic.patterns import displacement as dsp
 
-#: The free orientation model warns when at least this fraction of the
-#: starts lie within 5 deg of one parent: the map looks like one crystal
+#: The free orientation model warns, and "auto" takes the crystal model,
+#: when at least this fraction of the starts lie within 5 deg of one
+#: parent: the map looks like one crystal
 #: (users' starts of BaTiO3 domain maps: 85-93 %; of a 1 mm Ni crystal 71
 #: %; kikuchipy's real 3 x 3 Ni map of three grains 67 %).
 ONE_CRYSTAL_NOTE = 0.7
@@ -310,6 +311,8 @@ def _prepare_problem(
     crystal, why = None, ""
     if orientation_model is not None:
         crystal, why = _one_crystal(start, xmap.phases[phase_id].point_group, ops)
+    if orientation_model == "auto" and crystal is not None and crystal.fraction < ONE_CRYSTAL_NOTE:
+        crystal = None
     if orientation_model == "free":
         if crystal is not None and crystal.fraction >= ONE_CRYSTAL_NOTE:
             warnings.warn(

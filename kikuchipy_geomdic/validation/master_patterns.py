@@ -17,11 +17,9 @@ Data and credits
   201 x 201. Each is ebsdsim's per-energy-bin master pattern read with
   ``kikuchipy.load(path, hemisphere="both")`` and averaged over the energy
   bins with ebsdsim's ``bin_weights`` (``np.average`` in float64, stored
-  as float32); the npz keeps the CIF the simulation used. Ni was computed
-  from ebsdsim's preset ``Ni.cif`` (a = 3.4751 angstrom, 1.4 % below
-  nickel's 3.524 angstrom, so its bands are about 1.4 % wider than real
-  Ni's), while the phase attached to it, :func:`phase` "Ni" from
-  ``data/Ni.cif``, has a = 3.524 angstrom.
+  as float32); the npz keeps the CIF the simulation used. Ni from
+  ``data/Ni.cif`` (a = 3.524 angstrom), the lattice of the phase attached
+  to it.
 - ``data/BaTiO3_dynamical.npz``: computed with de-ebsd 0.2.1
   (GPL-3.0-or-later; Bloch waves, its own Monte Carlo depth profile),
   20 kV, sample tilt 70 deg, dmin 0.04 nm, Lambert 801 x 801 per
