@@ -242,11 +242,11 @@ def _refine_parser(sub, common: argparse.ArgumentParser) -> None:
     refine.add_argument(
         "--orientation-model",
         choices=("free", "crystal", "auto"),
-        default="free",
-        help="free (default): a rotation per point; crystal: the map is one crystal (a "
-        "wafer, a domain map), one parent orientation in each point's variant with a small "
-        "scatter (--orientation-prior, default 0.1 deg); auto: crystal where the starting "
-        "orientations are one crystal, else free",
+        default="auto",
+        help="free: a rotation per point; crystal: the map is one crystal (a wafer, a domain "
+        "map), one parent orientation in each point's variant with a small scatter "
+        "(--orientation-prior, default 0.1 deg); auto (default): crystal where 70 %% of the "
+        "starting orientations are one crystal, else free",
     )
     refine.add_argument(
         "--points",
