@@ -191,20 +191,22 @@ def test_a_calibration_that_cannot_move_says_so():
     assert any("did not move from its start" in str(w.message) for w in caught)
 
 
-def test_the_free_model_says_when_a_map_looks_like_one_crystal():
+def test_auto_model_and_the_free_models_note():
     sm = synthetic.synthetic_map("Si", (4, 4), "single", shape=(40, 40), seed=0)
+    kw = dict(parameters=["pcx", "pcy", "pcz"], max_iterations=1, full_field=False,
+              show_progressbar=False)  # fmt: skip
     with pytest.warns(UserWarning, match="the map looks like one crystal"):
-        sm.signal.refine_geometry_dic(
-            sm.start_xmap, sm.start_detector, sm.master_pattern, sm.energy,
-            parameters=["pcx", "pcy", "pcz"], max_iterations=1, full_field=False,
-            show_progressbar=False,
-        )  # fmt: skip
+        free = sm.signal.refine_geometry_dic(*sm.start_inputs[1:], orientation_model="free", **kw)
+    assert free.orientation_model == "free"
+    # The default takes the crystal model on one crystal, without the note
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        auto = sm.signal.refine_geometry_dic(*sm.start_inputs[1:], **kw)
+    assert auto.orientation_model == "crystal"
+    assert not any("looks like one crystal" in str(w.message) for w in caught)
     poly = synthetic.synthetic_map("Si", (4, 4), "random", shape=(40, 40), seed=0)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        poly.signal.refine_geometry_dic(
-            poly.start_xmap, poly.start_detector, poly.master_pattern, poly.energy,
-            parameters=["pcx", "pcy", "pcz"], max_iterations=1, full_field=False,
-            show_progressbar=False,
-        )  # fmt: skip
+        res = poly.signal.refine_geometry_dic(*poly.start_inputs[1:], **kw)
+    assert res.orientation_model == "free"
     assert not any("looks like one crystal" in str(w.message) for w in caught)
