@@ -170,7 +170,7 @@ def master_pattern(
     >>> master_pattern("BaTiO3").metadata.General.title
     'BaTiO3 dynamical (de-ebsd 0.2.1)'
     >>> master_pattern("BaTiO3", kind="ebsdsim").data.shape
-    (2, 129, 129)
+    (2, 201, 201)
     >>> master_pattern("Ni", kind="emsoft").metadata.General.title
     'Ni dynamical (EMsoft, kikuchipy data)'
     """
