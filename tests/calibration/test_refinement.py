@@ -897,3 +897,22 @@ def test_single_pattern_calibrates_the_pc():
         se = res.standard_errors[name]
         assert 2e-4 < se < 5e-3, (name, se)
         assert abs(res.parameters[name] - sm.geometry.pc[i]) <= 3 * se, name
+
+
+def test_an_angle_kept_at_its_start_has_no_standard_error():
+    from kikuchipy_geomdic.calibration.result import _kept
+
+    start = synthetic.default_geometry((3, 3), (60, 60))
+    moved = start.updated({"tilt": 0.4, "pcx": 1e-3})
+    se = {"pcx": 2e-3, "tilt": 0.3, "azimuthal": 0.2, "tilt-sample_tilt": 0.3}
+    out = _kept(se, moved, start)
+    # The azimuthal stayed (poorly determined): its start is the answer;
+    # the tilt moved, and a poorly determined PC keeps its standard error
+    assert out["azimuthal"] == np.inf
+    assert out["tilt"] == se["tilt"] and out["tilt-sample_tilt"] == se["tilt-sample_tilt"]
+    assert out["pcx"] == se["pcx"]
+    kept_tilt = _kept(se, start.updated({"pcx": 1e-3}), start)
+    assert kept_tilt["tilt"] == kept_tilt["tilt-sample_tilt"] == np.inf
+    # A well determined angle that did not move keeps its standard error
+    assert _kept({"azimuthal": 0.05}, start, start)["azimuthal"] == 0.05
+    assert se["azimuthal"] == 0.2  # the caller's dict is not changed
