@@ -89,6 +89,23 @@ def crystal_rows() -> list[dict]:
     return rows
 
 
+ENVELOPE = re.compile(
+    r"^(?P<kind>poly|single|domains)\s+\S+\s+seed \d+ (?P<model>\S+)\s+\| PC err .*\| se "
+    r"(?P<se>\S+) .*max z\s+(?P<z>[\d.]+)"
+)
+
+
+def envelope_rows() -> list[dict]:
+    """Section 8's envelope: largest error / se per map (finite ones)."""
+    rows = []
+    for path in sorted((RESULTS / "envelope").glob("bench_envelope_*.log")):
+        for line in path.read_text().splitlines():
+            m = ENVELOPE.match(line)
+            if m and m["se"] != "inf":
+                rows.append(dict(kind=m["kind"], model=m["model"], z=float(m["z"])))
+    return rows
+
+
 def picks() -> dict[float, float]:
     """Largest PC error on the map against dose; dose 0.3 from its rerun."""
     out = {}
@@ -120,7 +137,7 @@ def main() -> None:
 
     plt.switch_backend("agg")
     rows, crystal = realistic_rows(), crystal_rows()
-    fig, axes = plt.subplots(1, 3, figsize=(16.5, 4.8), width_ratios=(1.25, 1.5, 1))
+    fig, axes = plt.subplots(1, 3, figsize=(18.5, 4.8), width_ratios=(1.25, 2.0, 1))
     styles = {
         "default": dict(color="tab:blue", marker="o", label="this package, default"),
         "DIC alone": dict(color="tab:orange", marker="s", label="DIC stage alone"),
@@ -164,12 +181,26 @@ def main() -> None:
             for i in range(len(sel))
         ]
         ax.plot(xs, [r["z"] for r in sel], ls="none", **style)
+    envelope = envelope_rows()
+    kinds = ("poly", "single", "domains")
+    for model, style in (
+        ("free", dict(color="tab:blue", marker="^", mfc="none", label="envelope, free model")),
+        ("crystal", dict(color="tab:green", marker="^", mfc="none", label="envelope, crystal")),
+    ):
+        for k, kind in enumerate(kinds):
+            sel = [r for r in envelope if r["kind"] == kind and r["model"] == model]
+            xs = [
+                c0 + 1 + k + (-0.15 if model == "free" else 0.15) + jitter(i, len(sel), 0.05)
+                for i in range(len(sel))
+            ]
+            ax.plot(xs, [r["z"] for r in sel], ls="none", **(style if k == 0 else
+                    {**style, "label": None}))  # fmt: skip
     for level, ls in ((1, ":"), (3, "--")):
         ax.axhline(level, color="gray", ls=ls, lw=1)
     ax.set_yscale("log")
     ax.set_xticks(
-        range(len(CASES) + 1),
-        [*(LABELS[c] for c in CASES), "single\ncrystals"],
+        range(len(CASES) + 1 + len(kinds)),
+        [*(LABELS[c] for c in CASES), "single\ncrystals", *(f"envelope\n{k}" for k in kinds)],
         fontsize=7,
     )
     ax.set_ylabel("largest |error| / standard error (pcx, pcy, pcz)")
