@@ -96,9 +96,12 @@ ENVELOPE = re.compile(
 
 
 def envelope_rows() -> list[dict]:
-    """Section 8's envelope: largest error / se per map (finite ones)."""
+    """Section 8's envelope: largest error / se per map (finite ones), the
+    current code's (logs of earlier code are named ``*before*``)."""
     rows = []
     for path in sorted((RESULTS / "envelope").glob("bench_envelope_*.log")):
+        if "before" in path.name:
+            continue
         for line in path.read_text().splitlines():
             m = ENVELOPE.match(line)
             if m and m["se"] != "inf":
