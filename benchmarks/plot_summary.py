@@ -133,6 +133,17 @@ def jitter(i: int, k: int, width: float = 0.08) -> float:
     return (i - (k - 1) / 2) * width
 
 
+def columns(ax, groups, key: str, offset: float, width: float, **style) -> None:
+    """Plot ``row[key]`` of each group of rows in its own column (the
+    group's index), shifted by *offset* and spread by *width*."""
+    xs, ys = [], []
+    for c, sel in enumerate(groups):
+        for i, r in enumerate(sel):
+            xs.append(c + offset + jitter(i, len(sel), width))
+            ys.append(r[key])
+    ax.plot(xs, ys, ls="none", **style)
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, default=RESULTS / "summary.png")
@@ -150,13 +161,8 @@ def main() -> None:
 
     ax = axes[0]
     for method, style in styles.items():
-        xs, ys = [], []
-        for c, case in enumerate(CASES):
-            sel = [r for r in rows if r["case"] == case and r["method"] == method]
-            for i, r in enumerate(sel):
-                xs.append(c + offsets[method] + jitter(i, len(sel), 0.03))
-                ys.append(r["pc"])
-        ax.plot(xs, ys, ls="none", alpha=0.85, **style)
+        cases = [[r for r in rows if r["case"] == c and r["method"] == method] for c in CASES]
+        columns(ax, cases, "pc", offsets[method], 0.03, alpha=0.85, **style)
     ax.set_yscale("log")
     ax.set_xticks(range(len(CASES)), [LABELS[c] for c in CASES], fontsize=7)
     ax.set_ylabel("largest PC error at the map centre")
@@ -166,38 +172,21 @@ def main() -> None:
 
     ax = axes[1]
     for method in ("default", "DIC alone"):
-        xs, ys = [], []
-        for c, case in enumerate(CASES):
-            sel = [r for r in rows if r["case"] == case and r["method"] == method]
-            for i, r in enumerate(sel):
-                xs.append(c + offsets[method] + jitter(i, len(sel), 0.03))
-                ys.append(r["z"])
-        ax.plot(xs, ys, ls="none", alpha=0.85, **styles[method])
-    c0 = len(CASES)
-    for model, style in (
-        ("free", dict(color="tab:blue", marker="D", label="single crystals, free model")),
-        ("crystal", dict(color="tab:green", marker="D", label="single crystals, crystal model")),
-    ):
-        sel = [r for r in crystal if r["model"] == model]
-        xs = [
-            c0 + (-0.15 if model == "free" else 0.15) + jitter(i, len(sel), 0.05)
-            for i in range(len(sel))
-        ]
-        ax.plot(xs, [r["z"] for r in sel], ls="none", **style)
+        cases = [[r for r in rows if r["case"] == c and r["method"] == method] for c in CASES]
+        columns(ax, cases, "z", offsets[method], 0.03, alpha=0.85, **styles[method])
     envelope = envelope_rows()
     kinds = ("poly", "single", "domains")
-    for model, style in (
-        ("free", dict(color="tab:blue", marker="^", mfc="none", label="envelope, free model")),
-        ("crystal", dict(color="tab:green", marker="^", mfc="none", label="envelope, crystal")),
-    ):
-        for k, kind in enumerate(kinds):
-            sel = [r for r in envelope if r["kind"] == kind and r["model"] == model]
-            xs = [
-                c0 + 1 + k + (-0.15 if model == "free" else 0.15) + jitter(i, len(sel), 0.05)
-                for i in range(len(sel))
-            ]
-            ax.plot(xs, [r["z"] for r in sel], ls="none", **(style if k == 0 else
-                    {**style, "label": None}))  # fmt: skip
+    models = (("free", -0.15, "tab:blue", "free model"), ("crystal", 0.15, "tab:green", "crystal"))
+    for model, offset, color, _ in models:
+        lead = [[]] * len(CASES) + [[r for r in crystal if r["model"] == model]]
+        label = f"single crystals, {'free model' if model == 'free' else 'crystal model'}"
+        columns(ax, lead, "z", offset, 0.05, color=color, marker="D", label=label)
+    for model, offset, color, name in models:
+        groups = [[]] * (len(CASES) + 1) + [
+            [r for r in envelope if r["kind"] == k and r["model"] == model] for k in kinds
+        ]
+        columns(ax, groups, "z", offset, 0.05, color=color, marker="^", mfc="none",
+                label=f"envelope, {name}")  # fmt: skip
     for level, ls in ((1, ":"), (3, "--")):
         ax.axhline(level, color="gray", ls=ls, lw=1)
     ax.set_yscale("log")
