@@ -226,7 +226,7 @@ class GeometryRefinementResult:
                 line += "  not determined" if none else "  poorly determined"
                 # Kept: back at the start to round-off (a held difference
                 # of tilt and sample_tilt is split in two again)
-                line += ", kept" if abs(a - b) <= 1e-9 * max(1.0, abs(a)) else ""
+                line += ", kept" if _at_start(b, a) else ""
             lines.append(line)
         pcs = [n for n in self.parameter_names if n.startswith("pc")]
         if pcs and all(np.isinf(self.standard_errors.get(n, 0)) for n in pcs):
@@ -315,6 +315,12 @@ def _final_orientations(
     return problem.refine_orientations(state.geometry, state.rotations, binning=1)
 
 
+def _at_start(value: float, start: float) -> bool:
+    """Whether *value* is *start* to round-off (a held tilt difference is
+    split in two again)."""
+    return abs(value - start) <= 1e-9 * max(1.0, abs(start))
+
+
 def _kept(se: dict[str, float], geometry: MapGeometry, geometry0: MapGeometry) -> dict:
     """*se* with an infinite standard error for every poorly determined
     angle the calibration kept at its start: the start is then the answer,
@@ -328,7 +334,7 @@ def _kept(se: dict[str, float], geometry: MapGeometry, geometry0: MapGeometry) -
             name in now
             and not name.startswith("pc")
             and se.get(own, 0) > DETERMINACY_LIMITS[name]
-            and abs(now[name] - then[name]) <= 1e-9 * max(1.0, abs(then[name]))
+            and _at_start(now[name], then[name])
         ):
             se[name] = float("inf")
             if own == TILT_DIFFERENCE:
