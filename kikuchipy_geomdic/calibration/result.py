@@ -235,7 +235,8 @@ class GeometryRefinementResult:
             notes.append("tilt and sample_tilt: only their difference is determined")
         if self.adequacy:
             notes.append(self.adequacy["verdict"])
-        sys = {n: v for n, v in self.adequacy.get("systematic", {}).items() if v > 0}
+        # Both tilts refined: each is infinite, their difference carries it
+        sys = {n: v for n, v in self.adequacy.get("systematic", {}).items() if 0 < v < np.inf}
         if sys:
             notes.append(
                 "sigma includes a systematic part (spread of the detector's quadrants): "
