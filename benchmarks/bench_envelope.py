@@ -31,7 +31,13 @@ error over its standard error, the angles' errors with their standard
 errors, whether it converged, time; with ``--kikuchipy`` also kikuchipy's
 pattern-wise Nelder-Mead from the same start (PCs averaged, no standard
 errors). A model with "/dic" appended (e.g. ``free/dic``) is the DIC
-stage alone (``full_field=False``). Then a summary per kind and model: how many maps are honest
+stage alone (``full_field=False``). With ``--reindex``, each domain map
+is also reindexed (:func:`~kikuchipy_geomdic.indexing.reindex.reindex`,
+the variant operators, the calibration's patterns) from the users'
+starts at each model's calibrated detector, and from the true
+orientations at the true detector, the limit: the fraction of points
+whose c axis is right, how many are flagged (``converged`` 0) and how
+many are wrong without a flag. Then a summary per kind and model: how many maps are honest
 (every PC error within 3 standard errors, or infinite standard errors
 with converged False), the median and largest PC error.
 
@@ -40,6 +46,7 @@ kinds x 13 cells x 5 seeds x 2 models several hours)::
 
     python benchmarks/bench_envelope.py --kinds single --seeds 0 1
     python benchmarks/bench_envelope.py --kinds domains --cells base dose-30 --seeds 0 1 2 3 4
+    python benchmarks/bench_envelope.py --kinds domains --cells base --seeds 0 --reindex
 """
 
 from __future__ import annotations
@@ -56,7 +63,8 @@ from bench_crystal import _kikuchipy_row  # run from benchmarks/
 from kikuchipy_geomdic import refine_geometry_dic
 from kikuchipy_geomdic.calibration import NotOneCrystalError
 from kikuchipy_geomdic.geometry import MapGeometry
-from kikuchipy_geomdic.indexing.variants import variant_operators
+from kikuchipy_geomdic.indexing.reindex import reindex
+from kikuchipy_geomdic.indexing.variants import domain_labels, variant_operators
 from kikuchipy_geomdic.validation import master_patterns, synthetic
 from kikuchipy_geomdic.validation.camera import Camera
 
@@ -149,8 +157,28 @@ def _calibrate(sm, model, ops) -> tuple[dict, float]:
     err = {n: res.parameters[n] - truth[n] for n in PARAMETERS}
     se = res.standard_errors
     z = max(abs(err[n]) / se[n] if se[n] > 0 else np.inf for n in PC)
-    out = dict(err=err, se=se, z=z, converged=res.converged, refused=False)
+    out = dict(err=err, se=se, z=z, converged=res.converged, refused=False, detector=res.detector)
     return out, time.perf_counter() - t0
+
+
+def _reindex_row(label: str, sm, start, detector, ops) -> str:
+    """The domain map reindexed from *start* at *detector*: c axis right,
+    flagged, wrong without a flag (labels in the true parent's frame)."""
+    t0 = time.perf_counter()
+    with _quiet():
+        out = reindex(sm.signal, start, detector, sm.master_pattern, sm.energy,
+                      pseudo_symmetry_ops=ops, show_progressbar=False)  # fmt: skip
+    truth = domain_labels(sm.xmap)
+    label_of = domain_labels(out, parent=truth.parent).label
+    right = label_of == truth.label
+    flagged = out.prop["converged"] == 0
+    c_axis = (label_of // 2 == truth.label // 2).mean()
+    wrong = int((~right & ~flagged).sum())
+    return (
+        f"{label} reindex | c axis right {c_axis:5.1%} | variant right {right.mean():5.1%} "
+        f"| flagged {int(flagged.sum()):3} | wrong, not flagged {wrong:3} "
+        f"| {time.perf_counter() - t0:3.0f} s"
+    )
 
 
 def _honest(r: dict) -> bool:
@@ -197,6 +225,7 @@ def main(argv=None) -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     ap.add_argument("--models", nargs="+", default=["free", "crystal"])
     ap.add_argument("--kikuchipy", action="store_true", help="add kikuchipy's Nelder-Mead")
+    ap.add_argument("--reindex", action="store_true", help="reindex the domain maps too")
     args = ap.parse_args(argv)
     results: dict = {}
     for kind in args.kinds:
@@ -206,10 +235,18 @@ def main(argv=None) -> None:
                 label = f"{kind:7} {cell:11} seed {seed}"
                 with _quiet():
                     sm = envelope_map(kind, cell, seed)
+                reindexing = args.reindex and kind == "domains"
+                if reindexing:
+                    print(_reindex_row(f"{label} truth  ", sm, sm.xmap, sm.detector, ops))
                 for model in args.models:
                     r, seconds = _calibrate(sm, model, ops)
                     results.setdefault((kind, model), []).append(r)
                     print(_row(label, model, r, seconds), flush=True)
+                    if reindexing and not r["refused"]:
+                        row = _reindex_row(
+                            f"{label} {model:7}", sm, sm.start_xmap, r["detector"], ops
+                        )
+                        print(row, flush=True)
                 if args.kikuchipy:
                     side = sm.geometry.navigation_shape[0]
                     points = np.argwhere(np.ones((side, side), bool))

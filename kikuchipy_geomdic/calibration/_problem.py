@@ -351,18 +351,17 @@ def _prepare_problem(
     if crystal is not None:
         # The parent in each start's variant, the starts' own errors
         # (absorbed geometry, misindexed points) left behind. The variant
-        # is the indexer's until the DIC stage's basin: at a start 1.8 %
-        # off, BaTiO3's variants compared there put 32 of 36 points of a
-        # six-variant map in a wrong one (significance 1.9), and the PC
-        # ended 2e-3 off
+        # is the indexer's until the DIC stage stops short of the basin or
+        # reaches it: at a start 1.8 % off, BaTiO3's variants compared
+        # there put 32 of 36 points of a six-variant map in a wrong one
+        # (significance 1.9), and the PC ended 2e-3 off
         anchors = crystal.anchors(start)
         # Points far from the parent are misindexed or another crystal:
-        # their patterns tell which, the parent's variant refined at the
-        # start geometry (unrefined, a start that absorbed the geometry's
-        # error fits its pattern better than the parent does)
-        why = _other_crystal(
-            problem.ncc(geometry0, start), problem.refined_ncc(geometry0, anchors)
-        )
+        # their patterns tell which, the parent's best variant refined at
+        # the start geometry (unrefined, a start that absorbed the
+        # geometry's error fits its pattern better than the parent does)
+        best = problem.best_variants(geometry0, anchors)
+        why = _other_crystal(problem.ncc(geometry0, start), problem.refined_ncc(geometry0, best))
         crystal = None if why else crystal
     if crystal is None and orientation_model == "crystal":
         raise NotOneCrystalError(
