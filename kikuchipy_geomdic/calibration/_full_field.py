@@ -33,6 +33,7 @@ from kikuchipy_geomdic.calibration.uncertainty import (
     UNDETERMINED_RANGE,
     _adequacy,
     _dic_update,
+    _free_errors,
     _inflated,
     _insignificant_moves,
     _named_errors,
@@ -80,6 +81,7 @@ def _full_field_stage(
     Returns the outcome, the standard errors (None: the DIC stage's at the
     end) and the adequacy."""
     dic_update, systematic = _dic_update(problem, outcome.state, orientation_prior)
+    dic_state = outcome.state
     # Whether the full field's basin is reached is the statistics' say;
     # what is reported without it includes what the patterns share
     statistical = _named_errors(problem.parameters, dic_update.standard_errors)
@@ -132,14 +134,21 @@ def _full_field_stage(
         if not adequacy["consistent"]:
             warnings.warn(adequacy["verdict"], UserWarning, stacklevel=3)
         outcome = replace(outcome, state=state, history=outcome.history + ff.history)
-        # The free model's PC never below the DIC stage's: the check against
-        # it cannot see a full-field bias under about three of its standard
-        # errors, and another simulator's misfit is one (few-grain Ni
-        # polycrystals across the envelope: PC errors beyond 3 of the full
-        # field's own on 11 of 26 maps). The crystal model's include the
-        # quadrants' systematic part (its DIC stage's, on one crystal, up to
-        # 1e-2: single crystals were covered on 26 of 26 maps without it)
-        floor = standard_errors if problem.crystal is None else {}
+        # The PC never below what the DIC stage's patterns determine with
+        # a free rotation each: the check against the DIC stage cannot see
+        # a full-field bias under about three of its standard errors, and
+        # another simulator's misfit is one (few-grain Ni polycrystals
+        # across the envelope: PC errors beyond 3 of the full field's own
+        # on 11 of 26 maps). The crystal model's tie to one parent is an
+        # assumption a shared misfit can fit (BaTiO3 domain maps, 401 x 401
+        # data master pattern: pcy 3.8e-4 off at 8 standard errors, 6.7e-4
+        # at 7; with it 1.5 and 1.2); its DIC stage's own errors carry the
+        # quadrants' spread, up to 1e-2 on a single crystal, too loose
+        floor = (
+            standard_errors
+            if problem.crystal is None
+            else _named_errors(problem.parameters, _free_errors(problem, dic_state))
+        )
         standard_errors = {
             k: max(v, floor.get(k, 0.0)) if k in _PC else v
             for k, v in _inflated(ff.standard_errors, adequacy).items()

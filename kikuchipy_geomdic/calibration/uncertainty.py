@@ -131,6 +131,17 @@ def _dic_update(problem: _Problem, state: _State, prior) -> tuple[JointUpdate, n
     return update, sys
 
 
+def _free_errors(problem: _Problem, state: _State) -> np.ndarray:
+    """The DIC stage's statistical standard errors (K,) at *state* with a
+    free rotation per pattern and no prior: what the patterns determine
+    without the crystal model's tie."""
+    solved, _ = solved_parameters(problem.parameters)
+    linear = _linearise(problem, state.geometry, state.field, solved)
+    offsets = np.zeros((state.rotations.size, 3))
+    update, _ = _joint_solve(state.field, linear, range(len(solved)), offsets, None, 0.0, False)
+    return update.standard_errors
+
+
 def _standard_errors(problem: _Problem, state: _State, prior) -> dict[str, float]:
     """Standard errors of every refined parameter at the final state, and
     of the determined tilt difference, from one joint solve, the
