@@ -235,3 +235,28 @@ def test_crystal_model_keeps_a_six_variant_maps_variants():
     pg = sm.xmap.phases[0].point_group
     off = _angle_to(res.xmap.rotations.flatten(), sm.xmap.rotations.flatten(), pg)
     assert off.max() < 0.5
+
+
+def test_crystal_model_errors_floored_by_free_rotations(monkeypatch):
+    """The crystal model's full-field PC standard errors are never below
+    the DIC stage's with a free rotation per pattern (a misfit all
+    patterns share can fit the tie to one parent)."""
+    import kikuchipy_geomdic.calibration._full_field as ff
+    from kikuchipy_geomdic.calibration.uncertainty import _free_errors
+
+    seen = {}
+
+    def loud(problem, state):
+        seen["free"] = _free_errors(problem, state)
+        return np.full_like(seen["free"], 0.5)
+
+    monkeypatch.setattr(ff, "_free_errors", loud)
+    sm = synthetic.synthetic_map("Si", (5, 5), "single", shape=(60, 60), seed=1)
+    res = sm.signal.refine_geometry_dic(
+        *sm.start_inputs[1:], parameters=["pcx", "pcy", "pcz"], orientation_model="crystal",
+        full_field=True, show_progressbar=False,
+    )  # fmt: skip
+    assert res.orientation_model == "crystal"
+    assert np.all(np.isfinite(seen["free"])) and np.all(seen["free"] > 0)
+    for n in ("pcx", "pcy", "pcz"):
+        assert res.standard_errors[n] == pytest.approx(0.5)
