@@ -13,6 +13,11 @@ Usage::
     python benchmarks/experiments/data_grid.py --step 4 --seeds 0 1
     python benchmarks/experiments/data_grid.py --step 2 --seeds 0
     python benchmarks/experiments/data_grid.py --step 4 --spline --seeds 0
+    python benchmarks/experiments/data_grid.py --step 2 --envelope --kinds domains --seeds 0
+
+With ``--envelope``, the rest of the command line goes to
+``bench_envelope.py``, whose domain maps then take their data from the
+coarsened de-ebsd pattern.
 """
 
 from __future__ import annotations
@@ -57,6 +62,7 @@ def main(argv=None) -> None:
     ap.add_argument("--spline", action="store_true")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--model", default="crystal")
+    ap.add_argument("--envelope", nargs=argparse.REMAINDER, help="bench_envelope.py's arguments")
     args = ap.parse_args(argv)
     own = bc.master_patterns.master_pattern
 
@@ -66,6 +72,11 @@ def main(argv=None) -> None:
         return own(phase, kind=kind, **kw)
 
     bc.master_patterns.master_pattern = data_pattern
+    if args.envelope is not None:
+        import bench_envelope
+
+        bench_envelope.main(args.envelope)
+        return
     grid = f"step {args.step}{' + spline' if args.spline else ''}"
     for seed in args.seeds:
         with bc._quiet():
