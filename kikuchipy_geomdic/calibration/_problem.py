@@ -363,7 +363,9 @@ def _prepare_problem(
         # the start geometry (unrefined, a start that absorbed the
         # geometry's error fits its pattern better than the parent does)
         best = problem.best_variants(geometry0, anchors)
-        why = _other_crystal(problem.ncc(geometry0, start), problem.refined_ncc(geometry0, best))
+        why = _other_crystal(
+            problem.ncc(geometry0, start), problem.refined_ncc(geometry0, best), crystal.far(start)
+        )
         crystal = None if why else crystal
     if crystal is None and orientation_model == "crystal":
         raise NotOneCrystalError(
