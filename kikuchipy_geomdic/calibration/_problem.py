@@ -316,8 +316,8 @@ def _prepare_problem(
     ):
         # Variants are the user's call until the envelope's domain cells
         # judge it: on the ones run (seed 0), the crystal model was honest
-        # on 2 of 4 and 5 of 5 maps (ebsdsim's 201 x 201 data; de-ebsd's on
-        # 401 x 401), the free model on 0 of 3 and 4 of 5, at the same
+        # on 5 of 11 and 9 of 10 maps (ebsdsim's 201 x 201 data; de-ebsd's on
+        # 401 x 401), the free model on 2 of 11 and 8 of 10, at the same
         # errors (benchmarks section 8)
         orientation_model = "free"
     if orientation_model == "free":
