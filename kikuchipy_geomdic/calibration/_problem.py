@@ -22,6 +22,7 @@ from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.calibration._checks import _check_steps
 from kikuchipy_geomdic.calibration._crystal import (
+    OTHER_CRYSTAL_FRACTION,
     NotOneCrystalError,
     _Crystal,
     _one_crystal,
@@ -362,11 +363,14 @@ def _prepare_problem(
         # their patterns tell which, the parent's best variant refined at
         # the start geometry (unrefined, a start that absorbed the
         # geometry's error fits its pattern better than the parent does)
-        best = problem.best_variants(geometry0, anchors)
-        why = _other_crystal(
-            problem.ncc(geometry0, start), problem.refined_ncc(geometry0, best), crystal.far(start)
-        )
-        crystal = None if why else crystal
+        far = crystal.far(start)
+        # Too few far starts to make another crystal: no refinement needed
+        if far.mean() >= OTHER_CRYSTAL_FRACTION:
+            best = problem.best_variants(geometry0, anchors)
+            why = _other_crystal(
+                problem.ncc(geometry0, start), problem.refined_ncc(geometry0, best), far
+            )
+            crystal = None if why else crystal
     if crystal is None and orientation_model == "crystal":
         raise NotOneCrystalError(
             f"orientation_model='crystal' was asked of a map that is not one crystal: {why}. "
