@@ -30,9 +30,9 @@ Data and credits
   correlation at 120 px. See ``data/README.md``.
 - ``data/BaTiO3_ebsdsim.npz`` (``kind="ebsdsim"``): a second BaTiO3
   master pattern, computed with ebsdsim 0.2.4 (MIT) from the same CIF,
-  Lambert 201 x 201, dmin 0.05 nm: another simulator for realistic test
-  data (120 px patterns correlate 0.82 with de-ebsd's, 0.93 after a
-  1 px blur; ebsdsim's and EMsoft's Ni 0.92 and 0.94).
+  Lambert 401 x 401, dmin 0.05 nm, the 20 kV energy bin: another
+  simulator for realistic test data (120 px patterns correlate 0.92 with
+  de-ebsd's; ebsdsim's and EMsoft's Ni 0.92).
 - ``kind="emsoft"``: kikuchipy's shipped EMsoft Ni master pattern
   (``kikuchipy.data.nickel_ebsd_master_pattern_small``, 20 kV, 401 x 401,
   uint8; simulated with EMsoft, Callahan and De Graef, Microsc.
@@ -136,7 +136,7 @@ def master_pattern(
     kind
         "dynamical" (package data at 20 kV only: Si and Ni computed with
         ebsdsim, BaTiO3 with de-ebsd), "ebsdsim" (the same for Si and Ni;
-        for BaTiO3 a 201 x 201 ebsdsim pattern, a second simulator for
+        for BaTiO3 a 401 x 401 ebsdsim pattern, a second simulator for
         realistic test data), "emsoft" (Ni only: kikuchipy's shipped EMsoft
         master pattern, 20 kV, 401 x 401, to simulate "experimental"
         patterns with another simulator than the one used to calibrate),
@@ -170,7 +170,7 @@ def master_pattern(
     >>> master_pattern("BaTiO3").metadata.General.title
     'BaTiO3 dynamical (de-ebsd 0.2.1)'
     >>> master_pattern("BaTiO3", kind="ebsdsim").data.shape
-    (2, 201, 201)
+    (2, 401, 401)
     >>> master_pattern("Ni", kind="emsoft").metadata.General.title
     'Ni dynamical (EMsoft, kikuchipy data)'
     """

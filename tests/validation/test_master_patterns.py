@@ -68,7 +68,7 @@ class TestMasterPattern:
 
     def test_ebsdsim_kind(self):
         other = master_patterns.master_pattern("BaTiO3", kind="ebsdsim")
-        assert other.data.shape == (2, 201, 201)
+        assert other.data.shape == (2, 401, 401)
         assert other.metadata.General.title == "BaTiO3 dynamical (ebsdsim 0.2.4)"
         # Si's (and Ni's) dynamical master pattern is ebsdsim's already
         si = master_patterns.master_pattern("Si", kind="ebsdsim")
