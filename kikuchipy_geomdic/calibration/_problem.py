@@ -312,14 +312,7 @@ def _prepare_problem(
     crystal, why = None, ""
     if orientation_model is not None:
         crystal, why = _one_crystal(start, xmap.phases[phase_id].point_group, ops)
-    if orientation_model == "auto" and (
-        crystal is None or crystal.fraction < ONE_CRYSTAL_NOTE or ops is not None
-    ):
-        # Variants are the user's call until the envelope's domain cells
-        # judge it: on the ones run (seed 0), the crystal model was honest
-        # on 5 of 11 and 9 of 10 maps (ebsdsim's 201 x 201 data; de-ebsd's on
-        # 401 x 401), the free model on 2 of 11 and 8 of 10, at the same
-        # errors (benchmarks section 8)
+    if orientation_model == "auto" and (crystal is None or crystal.fraction < ONE_CRYSTAL_NOTE):
         orientation_model = "free"
     if orientation_model == "free":
         if crystal is not None and crystal.fraction >= ONE_CRYSTAL_NOTE:

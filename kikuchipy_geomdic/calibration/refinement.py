@@ -200,14 +200,13 @@ def refine_geometry_dic(
         not carried into the fit. Raises
         :class:`~kikuchipy_geomdic.calibration.NotOneCrystalError` (a ``ValueError``)
         if the starts are not one crystal. "auto" (default): "crystal"
-        for a single crystal without *pseudo_symmetry_ops*, where at
-        least 70 % of the starts lie within 5 deg of one parent and their
-        patterns agree, else "free" (on realistic single crystals the free
-        model's standard errors missed errors by up to 23 of them, the
-        crystal model's by at most 1.6; a polycrystal is calibrated as
-        before). Domain maps take "crystal" only when asked: from a start
-        1.8 % off, a map of all six BaTiO3 variants ended with every point
-        in one of two variants.
+        where at least 70 % of the starts lie within 5 deg of one parent
+        (modulo *pseudo_symmetry_ops*) and their patterns agree, else
+        "free" (on realistic single crystals the free model's standard
+        errors missed errors by up to 23 of them, the crystal model's by
+        at most 1.6; on BaTiO3 domain maps across the envelope by up to
+        14, the crystal model's by at most 2.3; a polycrystal is
+        calibrated as before).
         The result says which was used
         (:attr:`GeometryRefinementResult.orientation_model`). Joint solver
         only.

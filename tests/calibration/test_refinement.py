@@ -806,9 +806,15 @@ def test_one_crystal_from_users_starts(one_crystal_users):
     # deg on falls of the displacement below its noise floor, the PC 9.5e-3
     # off at 19 standard errors; held, the full field moved the tilt
     # difference 9.6 deg, at "4.4 standard errors"
+    # The default takes the crystal model for a domain map: the angles
+    # move only where they are determined (the free model held the
+    # azimuthal; the crystal model took it from 0.75 deg off to 0.42 and
+    # 0.18)
     dose, sm, res = one_crystal_users
     err, _ = _errors(res, sm)
-    assert res.parameters["azimuthal"] == pytest.approx(sm.start_geometry.azimuthal, abs=1e-9)
+    assert res.orientation_model == "crystal"
+    if res.parameters["azimuthal"] != pytest.approx(sm.start_geometry.azimuthal, abs=1e-9):
+        assert abs(err["azimuthal"]) <= 3 * res.standard_errors["azimuthal"], err
     start, end = sm.start_geometry, res.parameters
     moved = (end["tilt"] - end["sample_tilt"]) - (start.tilt - start.sample_tilt)
     assert abs(moved) <= UNDETERMINED_RANGE
