@@ -234,7 +234,11 @@ def test_crystal_model_keeps_a_six_variant_maps_variants():
         assert abs(res.parameters[n] - truth[n]) < 1e-4, n
     pg = sm.xmap.phases[0].point_group
     off = _angle_to(res.xmap.rotations.flatten(), sm.xmap.rotations.flatten(), pg)
-    assert off.max() < 0.5
+    # Every point in its variant; the detector angles, which the patterns
+    # do not determine with free rotations, held at their start (0.9 and
+    # -0.75 deg off): the orientations share that rotation
+    assert off.max() < 2.0
+    assert np.ptp(off) < 0.1
 
 
 def test_crystal_model_errors_floored_by_free_rotations(monkeypatch):
@@ -295,3 +299,39 @@ def test_full_field_steps_again_with_fresh_jacobians_after_an_uphill_step():
     assert max(map(abs, err.values())) < 2e-4, err
     for n, e in err.items():
         assert abs(e) <= 3 * res.standard_errors[n], (n, e)
+
+
+@pytest.mark.parametrize("free_angle_error", [1e-3, 50.0])
+def test_crystal_model_angles_judged_against_free_rotations(monkeypatch, free_angle_error):
+    """With the crystal model an angle moves only by three of the DIC
+    stage's standard errors with a free rotation per pattern (here
+    substituted), and reports at least that error: the tie to one parent,
+    which determines the angles on a large map, is an assumption a misfit
+    all patterns share can fit."""
+    import kikuchipy_geomdic.calibration._full_field as ff
+    from kikuchipy_geomdic.geometry import MapGeometry
+
+    def substituted(problem, state):
+        return np.array([1e-5, 1e-5, 1e-5, free_angle_error])
+
+    monkeypatch.setattr(ff, "_free_errors", substituted)
+    geometry = MapGeometry(
+        pc=(0.50, 0.20, 0.70), shape=(60, 60), px_size=70.0, binning=8.0,
+        step_sizes=(300.0, 300.0), navigation_shape=(6, 6), tilt=5.0, azimuthal=0.5,
+        sample_tilt=70.0,
+    )  # fmt: skip
+    sm = synthetic.synthetic_map(
+        "Si", (6, 6), "single", geometry=geometry, seed=0,
+        perturbation={"pcx": 0.01, "pcy": -0.01, "azimuthal": 1.5},
+    )  # fmt: skip
+    res = sm.signal.refine_geometry_dic(
+        *sm.start_inputs[1:], parameters=["pcx", "pcy", "pcz", "azimuthal"],
+        orientation_model="crystal", full_field=True, show_progressbar=False,
+    )  # fmt: skip
+    start = sm.start_geometry.azimuthal
+    if free_angle_error > 1:
+        assert res.parameters["azimuthal"] == start
+        assert np.isinf(res.standard_errors["azimuthal"])
+    else:
+        # Determined on 1.5 mm: moved towards the truth, 1.5 deg away
+        assert abs(res.parameters["azimuthal"] - sm.geometry.azimuthal) < 0.5

@@ -754,6 +754,9 @@ def test_batio3_wrong_variants_corrected(kind):
         points=36,
         orientation_prior=0.3,
         pseudo_symmetry_ops=ops[1:],
+        # The free model with a prior (the crystal model, the default for
+        # one crystal, has its own test in test_crystal.py)
+        orientation_model="free",
         show_progressbar=False,
     )
     err, mis = _errors(res, sm)
