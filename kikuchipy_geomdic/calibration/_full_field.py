@@ -111,7 +111,7 @@ def _full_field_stage(
     if full_field:
         # What the DIC stage's patterns determine with a free rotation each:
         # the crystal model's standard errors are never below it
-        free = None if problem.crystal is None else _free_errors(problem, dic_state)
+        free_se = None if problem.crystal is None else _free_errors(problem, dic_state)
         ff = _full_field(
             problem,
             outcome.state,
@@ -119,7 +119,7 @@ def _full_field_stage(
             1 + max((h["iteration"] for h in outcome.history), default=-1),
             progress.write,
             statistical,
-            free,
+            free_se,
         )
         adequacy = _adequacy(
             problem, ff.geometry, ff.standard_errors, ff.held, outcome.state.geometry, dic_update
@@ -149,9 +149,9 @@ def _full_field_stage(
         # at 7; with it 1.5 and 1.2), the angles' too (_full_field); its
         # DIC stage's own errors carry the quadrants' spread, up to 1e-2 on
         # a single crystal, too loose
-        floor = standard_errors if free is None else _named_errors(problem.parameters, free)
+        floor = standard_errors if free_se is None else _named_errors(problem.parameters, free_se)
         standard_errors = {
-            k: max(v, floor.get(k, 0.0)) if k in _PC or free is not None else v
+            k: max(v, floor.get(k, 0.0)) if k in _PC or free_se is not None else v
             for k, v in _inflated(ff.standard_errors, adequacy).items()
         }
     return outcome, standard_errors, adequacy
@@ -172,7 +172,9 @@ class _FullField:
     systematic: dict[str, float] | None = None
 
 
-def _full_field(problem, state, prior, first_it, report, dic_errors=None, free=None) -> _FullField:
+def _full_field(
+    problem, state, prior, first_it, report, dic_errors=None, free_se=None
+) -> _FullField:
     """Gauss-Newton on the pixel intensities from where the DIC stage
     converged: the geometry and one rotation per pattern, the rotations
     eliminated by the Schur complement of :func:`solve_joint`, each
@@ -194,7 +196,7 @@ def _full_field(problem, state, prior, first_it, report, dic_errors=None, free=N
     the first step took the azimuthal of a 65 um BaTiO3 map 20 deg away
     and ended the full field there. With the crystal model, a move is
     judged against at least the DIC stage's standard errors with a free
-    rotation per pattern (*free*, solved order): the angles are then
+    rotation per pattern (*free_se*, solved order): the angles are then
     determined by the tie to one parent, which a misfit all patterns
     share can fit (a BaTiO3 domain map from another simulator's data,
     500 counts/px: the tilt moved from 0.9 to 2.8 deg off at 3.2 of the
@@ -253,7 +255,7 @@ def _full_field(problem, state, prior, first_it, report, dic_errors=None, free=N
         )
     se = np.sqrt(np.clip(np.diag(cov), 0, None) + systematic**2)
     moved = _solved_values(geometry, solved, split) - _solved_values(start, solved, split)
-    judged = se if free is None else np.maximum(se, free)
+    judged = se if free_se is None else np.maximum(se, free_se)
     held = tuple(dict.fromkeys(unseen + _insignificant_moves(solved, judged, moved)))
     if held and system is not None:
         geometry, rotations, cov = _hold(system, held, start, solved, split, prior, cov)
