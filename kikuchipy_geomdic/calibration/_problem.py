@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import Any
 
@@ -29,7 +29,7 @@ from kikuchipy_geomdic.calibration._crystal import (
     _other_crystal,
 )
 from kikuchipy_geomdic.calibration._points import _experimental, _select_points
-from kikuchipy_geomdic.calibration._processing import _lobe
+from kikuchipy_geomdic.calibration._processing import _lobe, _static_background
 from kikuchipy_geomdic.calibration.jacobian import analytic_jacobian, finite_difference_jacobian
 from kikuchipy_geomdic.geometry import MapGeometry, rotation_vectors
 from kikuchipy_geomdic.geometry.maps import flat_index
@@ -68,6 +68,8 @@ class _Problem:
     pseudo_symmetry_ops: Rotation | None = None
     #: The smoothed static background (mean 1), if the signal has one
     lobe: np.ndarray | None = None
+    #: The static background itself, bands and all (float64)
+    background: np.ndarray | None = field(default=None, repr=False)
     #: The crystal model, if the points are taken as one crystal
     crystal: _Crystal | None = None
 
@@ -343,6 +345,7 @@ def _prepare_problem(
         refine_kwargs=ref_kw,
         pseudo_symmetry_ops=ops,
         lobe=_lobe(signal),
+        background=_static_background(signal),
     )
     if crystal is not None:
         # The parent in each start's variant, the starts' own errors

@@ -380,7 +380,11 @@ def test_processing_is_estimated(blurred, blurred_results, realistic, realistic_
     # background removal (a high-pass of width / 8) and the map-mean
     # static background (the ghost) on the realistic one, whose static
     # background gives the lobe
-    from kikuchipy_geomdic.calibration._processing import _estimate_processing, _lobe
+    from kikuchipy_geomdic.calibration._processing import (
+        _estimate_processing,
+        _lobe,
+        _static_background,
+    )
     from kikuchipy_geomdic.indexing.orientation import master_pattern_arrays
 
     for sm, res, highpass, ghost in (
@@ -389,6 +393,7 @@ def test_processing_is_estimated(blurred, blurred_results, realistic, realistic_
     ):
         problem, rot = _problem(sm, res.points)
         problem.lobe = _lobe(sm.signal)
+        problem.background = _static_background(sm.signal)
         assert (problem.lobe is None) == (sm.camera is None)
         arrays = master_pattern_arrays(sm.simulator, 20)
         proc = _estimate_processing(problem, arrays, sm.geometry, rot)
@@ -881,6 +886,43 @@ def test_progressbar(tiny, monkeypatch, capsys, preference, show, shown):
     assert "Geometry refinement" in err and "iteration" in err
     last = err.replace("\r", "\n").strip().splitlines()[-1]
     assert "100%" in last, last
+
+
+def test_full_field_follows_an_unbinned_dic_stage_that_determines_the_pc(
+    si_mp, monkeypatch, capsys
+):
+    # The binned DIC stage (here made to) leave the PC undetermined: it
+    # runs again unbinned and, where that determines the PC, the full
+    # field follows from there instead of being skipped
+    import dataclasses
+
+    import kikuchipy_geomdic.calibration._full_field as ff
+
+    real = ff._dic_update
+    binnings = []
+
+    def loose_when_binned(problem, state, prior):
+        update, systematic = real(problem, state, prior)
+        binnings.append(problem.dic_kwargs["binning"])
+        if problem.dic_kwargs["binning"] > 1:
+            update = dataclasses.replace(update, covariance=update.covariance * 1e6)
+        return update, systematic
+
+    monkeypatch.setattr(ff, "_dic_update", loose_when_binned)
+    sm = synthetic.synthetic_map(si_mp, (4, 4), shape=(120, 120), seed=0, orientation_error=0.5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)
+        warnings.filterwarnings("ignore", "of 64 ROIs got no displacement")
+        res = _refine(sm, points=16, parameters=["pcx", "pcy", "pcz"], show_progressbar=True)
+    assert binnings[0] > 1 and binnings[1] == 1
+    assert (
+        "pcx, pcy, pcz undetermined binned: the DIC stage again unbinned"
+        in capsys.readouterr().out
+    )
+    assert "full-field" in [h.get("stage") for h in res.history]
+    err, _ = _errors(res, sm)
+    for name in ("pcx", "pcy", "pcz"):
+        assert abs(err[name]) <= 3 * res.standard_errors[name] < 1e-3, name
 
 
 def test_progressbar_paper_solver(tiny, capsys):
