@@ -47,6 +47,14 @@ kinds x 13 cells x 5 seeds x 2 models several hours)::
     python benchmarks/bench_envelope.py --kinds single --seeds 0 1
     python benchmarks/bench_envelope.py --kinds domains --cells base dose-30 --seeds 0 1 2 3 4
     python benchmarks/bench_envelope.py --kinds domains --cells base --seeds 0 --reindex
+    python benchmarks/bench_envelope.py --kinds domains --cells pc-high --seeds 1 2 \
+        --models crystal --from-truth --own-data --dose 10000
+
+``--from-truth`` starts at the true detector and orientations: where the
+calibration converges, whatever the start; ``--own-data`` simulates the
+data with the master pattern calibrated with, and ``--dose`` replaces the
+cell's counts/px; together they split an error into noise, the
+simulators' difference and the model's processing.
 """
 
 from __future__ import annotations
@@ -110,9 +118,15 @@ CELLS = {
 }
 
 
-def envelope_map(kind: str, cell: str, seed: int) -> synthetic.SyntheticMap:
-    """The realistic map of *kind* in *cell* for *seed*."""
+def envelope_map(
+    kind: str, cell: str, seed: int, own_data: bool = False, dose: float | None = None
+) -> synthetic.SyntheticMap:
+    """The realistic map of *kind* in *cell* for *seed*; *own_data*: the
+    data from the master pattern calibrated with (the simulators'
+    difference taken away); *dose* in counts/px replaces the cell's."""
     k, c = KINDS[kind], {**BASE, **CELLS[cell]}
+    if dose is not None:
+        c["dose"] = dose
     static = k["static"] if c["static"] is None else not k["static"]
     side, px = k["side"], int(c["px"])
     step = c["fov"] / (side - 1)
@@ -126,7 +140,7 @@ def envelope_map(kind: str, cell: str, seed: int) -> synthetic.SyntheticMap:
         orientations=k["orientations"], geometry=geometry, perturbation=c["perturbation"],
         seed=seed, start="indexed", orientation_error=1.0,
         camera=Camera(dose=c["dose"], static=static),
-        simulator=master_patterns.master_pattern(k["phase"], kind=k["data"]),
+        simulator=master_patterns.master_pattern(k["phase"], kind=k["mp" if own_data else "data"]),
     )  # fmt: skip
 
 
@@ -137,16 +151,18 @@ def _quiet():
         yield
 
 
-def _calibrate(sm, model, ops) -> tuple[dict, float]:
+def _calibrate(sm, model, ops, from_truth: bool = False) -> tuple[dict, float]:
     """One calibration's figures: errors, standard errors, max z, angles.
     *model*: an orientation model, "/dic" appended for the DIC stage
-    alone (``full_field=False``)."""
+    alone (``full_field=False``); *from_truth*: started from the true
+    detector and orientations (the calibration's fixed point)."""
     t0 = time.perf_counter()
     orientation_model, _, stage = model.partition("/")
+    xmap, detector = (sm.xmap, sm.detector) if from_truth else (sm.start_xmap, sm.start_detector)
     try:
         with _quiet():
             res = refine_geometry_dic(
-                sm.signal, sm.start_xmap, sm.start_detector, sm.master_pattern, sm.energy,
+                sm.signal, xmap, detector, sm.master_pattern, sm.energy,
                 parameters=PARAMETERS, pseudo_symmetry_ops=ops,
                 orientation_model=orientation_model, show_progressbar=False,
                 full_field=False if stage == "dic" else None,
@@ -226,6 +242,15 @@ def main(argv=None) -> None:
     ap.add_argument("--models", nargs="+", default=["free", "crystal"])
     ap.add_argument("--kikuchipy", action="store_true", help="add kikuchipy's Nelder-Mead")
     ap.add_argument("--reindex", action="store_true", help="reindex the domain maps too")
+    ap.add_argument(
+        "--from-truth",
+        action="store_true",
+        help="start at the true detector and orientations (the fixed point)",
+    )
+    ap.add_argument(
+        "--own-data", action="store_true", help="data from the master pattern calibrated with"
+    )
+    ap.add_argument("--dose", type=float, default=None, help="counts/px instead of the cell's")
     args = ap.parse_args(argv)
     results: dict = {}
     for kind in args.kinds:
@@ -234,12 +259,12 @@ def main(argv=None) -> None:
             for seed in args.seeds:
                 label = f"{kind:7} {cell:11} seed {seed}"
                 with _quiet():
-                    sm = envelope_map(kind, cell, seed)
+                    sm = envelope_map(kind, cell, seed, args.own_data, args.dose)
                 reindexing = args.reindex and kind == "domains"
                 if reindexing:
                     print(_reindex_row(f"{label} truth  ", sm, sm.xmap, sm.detector, ops))
                 for model in args.models:
-                    r, seconds = _calibrate(sm, model, ops)
+                    r, seconds = _calibrate(sm, model, ops, args.from_truth)
                     results.setdefault((kind, model), []).append(r)
                     print(_row(label, model, r, seconds), flush=True)
                     if reindexing and not r["refused"]:
