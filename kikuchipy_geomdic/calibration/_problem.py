@@ -196,6 +196,12 @@ class _Problem:
         )
         rq = refined.rotations.data.reshape(n, m, 4)
         k = ori.compare_variants(self.experimental, rq, pcs, om, arrays).variant
+        if not k.any():
+            # The rotations themselves, not their product with the identity
+            # (orix normalises it to within 1e-16): the DIC stage, seeing
+            # a change, chose the variants again in the basin until its
+            # iterations ran out (8 of 36 domain maps "not converged")
+            return rotations
         return ops[k] * rotations
 
     def jacobian(
