@@ -266,6 +266,36 @@ def test_crystal_model_errors_floored_by_free_rotations(monkeypatch):
         assert res.standard_errors[n] == pytest.approx(0.5)
 
 
+def _domain_map(pc, seed, perturbation, **kwargs):
+    """A 13 x 13 BaTiO3 domain map as a camera and a user make it (the
+    envelope's base cell at *pc*), from users' starts."""
+    from kikuchipy_geomdic.geometry import MapGeometry
+    from kikuchipy_geomdic.validation.camera import Camera
+
+    geometry = MapGeometry(
+        pc=pc, shape=(120, 120), px_size=70.0, binning=4.0, step_sizes=(200 / 12, 200 / 12),
+        navigation_shape=(13, 13), tilt=5.0, azimuthal=0.5, sample_tilt=70.0,
+    )  # fmt: skip
+    return synthetic.synthetic_map(
+        kwargs.pop("master_pattern", "BaTiO3"), (13, 13), orientations="stripes",
+        geometry=geometry, perturbation=perturbation, seed=seed, start="indexed",
+        orientation_error=1.0, camera=Camera(dose=150.0, static=False), **kwargs,
+    )  # fmt: skip
+
+
+def _pc_errors(sm, **kwargs):
+    """The calibration of *sm* from its starts and its PC errors."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = sm.signal.refine_geometry_dic(
+            sm.start_xmap, sm.start_detector, sm.master_pattern, sm.energy,
+            parameters=["pcx", "pcy", "pcz", "tilt", "azimuthal"],
+            pseudo_symmetry_ops=variant_operators()[1:], show_progressbar=False, **kwargs,
+        )  # fmt: skip
+    truth = sm.geometry.as_dict()
+    return res, {n: res.parameters[n] - truth[n] for n in ("pcx", "pcy", "pcz")}
+
+
 def test_full_field_steps_again_with_fresh_jacobians_after_an_uphill_step():
     """A BaTiO3 domain map as a camera and a user make it, from users'
     starts (data from the calibration's own master pattern: a best case on
@@ -273,29 +303,8 @@ def test_full_field_steps_again_with_fresh_jacobians_after_an_uphill_step():
     Jacobians, went uphill, and the PC stopped 3.2e-4 off (the full
     field's fixed point from the truth: 7e-5 off); stepping again from
     there with fresh Jacobians, 1.3e-4."""
-    from kikuchipy_geomdic.geometry import MapGeometry
-    from kikuchipy_geomdic.validation.camera import Camera
-
-    geometry = MapGeometry(
-        pc=(0.50, 0.20, 0.70), shape=(120, 120), px_size=70.0, binning=4.0,
-        step_sizes=(200 / 12, 200 / 12), navigation_shape=(13, 13), tilt=5.0, azimuthal=0.5,
-        sample_tilt=70.0,
-    )  # fmt: skip
-    sm = synthetic.synthetic_map(
-        "BaTiO3", (13, 13), orientations="stripes", geometry=geometry,
-        perturbation={"pcx": 0.015, "pcy": -0.012, "pcz": 0.018}, seed=0, start="indexed",
-        orientation_error=1.0, camera=Camera(dose=150.0, static=False),
-    )  # fmt: skip
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        res = sm.signal.refine_geometry_dic(
-            sm.start_xmap, sm.start_detector, sm.master_pattern, sm.energy,
-            parameters=["pcx", "pcy", "pcz", "tilt", "azimuthal"],
-            pseudo_symmetry_ops=variant_operators()[1:], orientation_model="crystal",
-            show_progressbar=False,
-        )  # fmt: skip
-    truth = sm.geometry.as_dict()
-    err = {n: res.parameters[n] - truth[n] for n in ("pcx", "pcy", "pcz")}
+    sm = _domain_map((0.50, 0.20, 0.70), 0, {"pcx": 0.015, "pcy": -0.012, "pcz": 0.018})
+    res, err = _pc_errors(sm, orientation_model="crystal")
     assert max(map(abs, err.values())) < 2e-4, err
     for n, e in err.items():
         assert abs(e) <= 3 * res.standard_errors[n], (n, e)
@@ -309,32 +318,17 @@ def test_domain_map_at_a_short_camera_length_from_users_starts():
     errors, which were reported. The full field from there, its
     Jacobians built again while a step moves the PC by more than its
     standard error, ends within 3e-4 and honest."""
-    from kikuchipy_geomdic.geometry import MapGeometry
     from kikuchipy_geomdic.validation import master_patterns
-    from kikuchipy_geomdic.validation.camera import Camera
 
-    geometry = MapGeometry(
-        pc=(0.45, 0.10, 0.50), shape=(120, 120), px_size=70.0, binning=4.0,
-        step_sizes=(200 / 12, 200 / 12), navigation_shape=(13, 13), tilt=5.0, azimuthal=0.5,
-        sample_tilt=70.0,
-    )  # fmt: skip
-    sm = synthetic.synthetic_map(
-        master_patterns.master_pattern("BaTiO3", kind="dynamical"), (13, 13),
-        orientations="stripes", geometry=geometry, perturbation=synthetic.DEFAULT_PERTURBATION,
-        seed=1, start="indexed", orientation_error=1.0, camera=Camera(dose=150.0, static=False),
+    sm = _domain_map(
+        (0.45, 0.10, 0.50), 1, synthetic.DEFAULT_PERTURBATION,
+        master_pattern=master_patterns.master_pattern("BaTiO3", kind="dynamical"),
         simulator=master_patterns.master_pattern("BaTiO3", kind="ebsdsim"),
     )  # fmt: skip
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        res = sm.signal.refine_geometry_dic(
-            sm.start_xmap, sm.start_detector, sm.master_pattern, sm.energy,
-            parameters=["pcx", "pcy", "pcz", "tilt", "azimuthal"],
-            pseudo_symmetry_ops=variant_operators()[1:], show_progressbar=False,
-        )  # fmt: skip
+    res, err = _pc_errors(sm)
     assert res.orientation_model == "crystal"
     assert "full-field" in [h.get("stage") for h in res.history]
-    truth = sm.geometry.as_dict()
-    err = {n: res.parameters[n] - truth[n] for n in ("pcx", "pcy", "pcz")}
+    assert res.converged
     assert max(map(abs, err.values())) < 3e-4, err
     for n, e in err.items():
         assert abs(e) <= 3 * res.standard_errors[n], (n, e)
