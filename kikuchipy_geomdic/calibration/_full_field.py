@@ -32,12 +32,11 @@ from kikuchipy_geomdic.calibration.uncertainty import (
     TILT_DIFFERENCE,
     UNDETERMINED_RANGE,
     _adequacy,
-    _dic_update,
+    _dic_errors,
     _free_errors,
     _inflated,
     _insignificant_moves,
     _named_errors,
-    _total,
 )
 from kikuchipy_geomdic.geometry import MapGeometry, rotations_from_vectors, solved_parameters
 
@@ -78,15 +77,17 @@ def _full_field_stage(
     it (:func:`_adequacy`). *guarded* (the default): skipped, with a
     warning, where the DIC stage left a PC undetermined, and the DIC stage
     run again unbinned (*dic_stage*) unless the user chose the *binning*.
-    Returns the outcome, the standard errors (None: the DIC stage's at the
-    end) and the adequacy."""
-    dic_update, systematic = _dic_update(problem, outcome.state, orientation_prior)
-    dic_state = outcome.state
+    Returns the outcome, the standard errors and the adequacy."""
+
+    def undetermined(statistical):
+        return [n for n in _PC if statistical.get(n, 0) > DETERMINACY_LIMITS[n]]
+
     # Whether the full field's basin is reached is the statistics' say;
     # what is reported without it includes what the patterns share
-    statistical = _named_errors(problem.parameters, dic_update.standard_errors)
-    standard_errors = _named_errors(problem.parameters, _total(dic_update, systematic))
-    loose = [n for n in _PC if statistical.get(n, 0) > DETERMINACY_LIMITS[n]]
+    dic_update, statistical, standard_errors = _dic_errors(
+        problem, outcome.state, orientation_prior
+    )
+    loose = undetermined(statistical)
     if guarded and full_field and loose and binning is None and problem.dic_kwargs["binning"] > 1:
         # The DIC stage again at full resolution, as full_field=False runs
         # it, and the full field from there if it determines the PC (a
@@ -96,11 +97,10 @@ def _full_field_stage(
         progress.write(f"  {', '.join(loose)} undetermined binned: the DIC stage again unbinned")
         problem = replace(problem, dic_kwargs={**problem.dic_kwargs, "binning": 1})
         outcome = dic_stage(problem, progress, 0.0)
-        dic_state = outcome.state
-        dic_update, systematic = _dic_update(problem, dic_state, orientation_prior)
-        statistical = _named_errors(problem.parameters, dic_update.standard_errors)
-        standard_errors = _named_errors(problem.parameters, _total(dic_update, systematic))
-        loose = [n for n in _PC if statistical.get(n, 0) > DETERMINACY_LIMITS[n]]
+        dic_update, statistical, standard_errors = _dic_errors(
+            problem, outcome.state, orientation_prior
+        )
+        loose = undetermined(statistical)
     if guarded and full_field and loose:
         # The full field needs a start in its basin, which a PC the
         # DIC stage leaves undetermined is not (measured: at 0.3
@@ -118,7 +118,7 @@ def _full_field_stage(
     if full_field:
         # What the DIC stage's patterns determine with a free rotation each:
         # the crystal model's standard errors are never below it
-        free_se = None if problem.crystal is None else _free_errors(problem, dic_state)
+        free_se = None if problem.crystal is None else _free_errors(problem, outcome.state)
         ff = _full_field(
             problem,
             outcome.state,

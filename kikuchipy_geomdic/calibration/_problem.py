@@ -29,7 +29,7 @@ from kikuchipy_geomdic.calibration._crystal import (
     _other_crystal,
 )
 from kikuchipy_geomdic.calibration._points import _experimental, _select_points
-from kikuchipy_geomdic.calibration._processing import _lobe, _static_background
+from kikuchipy_geomdic.calibration._processing import _fit_lobe, _static_background
 from kikuchipy_geomdic.calibration.jacobian import analytic_jacobian, finite_difference_jacobian
 from kikuchipy_geomdic.geometry import MapGeometry, rotation_vectors
 from kikuchipy_geomdic.geometry.maps import flat_index
@@ -66,12 +66,15 @@ class _Problem:
     dic_kwargs: dict
     refine_kwargs: dict
     pseudo_symmetry_ops: Rotation | None = None
-    #: The smoothed static background (mean 1), if the signal has one
-    lobe: np.ndarray | None = None
-    #: The static background itself, bands and all (float64)
+    #: The signal's static background, bands and all (float64), if it has one
     background: np.ndarray | None = field(default=None, repr=False)
     #: The crystal model, if the points are taken as one crystal
     crystal: _Crystal | None = None
+
+    @cached_property
+    def lobe(self) -> np.ndarray | None:
+        """The background lobe (mean 1) of the static background."""
+        return None if self.background is None else _fit_lobe(self.background)
 
     @cached_property
     def arrays(self) -> ori.MasterPatternArrays:
@@ -350,7 +353,6 @@ def _prepare_problem(
         dic_kwargs=dic_kwargs,
         refine_kwargs=ref_kw,
         pseudo_symmetry_ops=ops,
-        lobe=_lobe(signal),
         background=_static_background(signal),
     )
     if crystal is not None:

@@ -1,7 +1,8 @@
 """What was done to the patterns: the full field's model of how a camera
 recorded them and a user processed them (:class:`_Processing`), estimated
 from the patterns themselves (:func:`_estimate_processing`), the
-background lobe of the signal's static background (:func:`_lobe`), and
+signal's static background (:func:`_static_background`) and its lobe
+(:func:`_fit_lobe`), and
 whether dividing by that background took the patterns' bands
 (:func:`_bands_divided_out`).
 
@@ -13,7 +14,6 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, field, replace
-from functools import cached_property
 
 import numpy as np
 from kikuchipy.filters import Window
@@ -72,13 +72,6 @@ def _static_background(signal: EBSD) -> np.ndarray | None:
     return bg
 
 
-def _lobe(signal: EBSD) -> np.ndarray | None:
-    """The background lobe of the signal's static background
-    (:func:`_static_background`, :func:`_fit_lobe`); None without one."""
-    bg = _static_background(signal)
-    return None if bg is None else _fit_lobe(bg)
-
-
 def _fit_lobe(background: np.ndarray) -> np.ndarray:
     """The background lobe of a static *background*, mean 1: a Gaussian
     fitted to it (its logarithm, quadratic in x and y, by least squares).
@@ -134,9 +127,9 @@ def _bands_divided_out(
 
 @functools.lru_cache(maxsize=16)
 def _lowpass_matrices(shape: tuple[int, int], sigma: float) -> tuple[np.ndarray, np.ndarray]:
-    """The (rows, rows) and (columns, columns) matrices ``R``, ``C`` of
+    """The (rows, rows) and (columns, columns) matrices ``R``, ``Ct`` of
     kikuchipy's dynamic background of patterns of *shape*, ``R @ pattern
-    @ C.T``: its frequency-domain filter is a correlation with its
+    @ Ct``: its frequency-domain filter is a correlation with its
     Gaussian window of *sigma* px (``int(4 * sigma)`` px wide, cut at two
     sigma) over the pattern with its edges replicated. Modelled instead
     as an uncut Gaussian, the weights differed by up to 2.3 % of a row's,
@@ -156,7 +149,9 @@ def _lowpass_matrices(shape: tuple[int, int], sigma: float) -> tuple[np.ndarray,
         np.add.at(a, (rows, np.clip(rows - before + np.arange(k), 0, n - 1)), weights)
         return a
 
-    return matrix(shape[0]), matrix(shape[1])
+    # Columns act from the right, transposed; contiguous (BLAS was 40x
+    # slower with a transposed view)
+    return matrix(shape[0]), np.ascontiguousarray(matrix(shape[1]).T)
 
 
 @dataclass(frozen=True)
@@ -194,15 +189,11 @@ class _Processing:
     static: bool = True
     lobe: np.ndarray | None = field(default=None, compare=False, repr=False)
 
-    @cached_property
-    def _lowpass_matrices(self) -> tuple[np.ndarray, np.ndarray]:
-        r, c = _lowpass_matrices(self.shape, self.highpass)
-        # Columns act from the right, transposed; contiguous (BLAS was 40x
-        # slower with a transposed view)
-        return r, np.ascontiguousarray(c.T)
-
     def _lowpass(self, planes: np.ndarray) -> np.ndarray:
-        r, ct = (m.astype(planes.dtype, copy=False) for m in self._lowpass_matrices)
+        r, ct = (
+            m.astype(planes.dtype, copy=False)
+            for m in _lowpass_matrices(self.shape, self.highpass)
+        )
         (rows, cols), m = self.shape, planes.size // (self.shape[0] * self.shape[1])
         t = (planes.reshape(m * rows, cols) @ ct).reshape(m, rows, cols)
         return np.matmul(r, t).reshape(planes.shape)

@@ -21,11 +21,7 @@ from orix.quaternion import Rotation
 from kikuchipy_geomdic.calibration._problem import _LoopOutcome, _Problem, _State
 from kikuchipy_geomdic.calibration.jacobian import analytic_jacobian
 from kikuchipy_geomdic.calibration.solve import coupling_matrix, solve_update
-from kikuchipy_geomdic.calibration.uncertainty import (
-    DETERMINACY_LIMITS,
-    TILT_DIFFERENCE,
-    _standard_errors,
-)
+from kikuchipy_geomdic.calibration.uncertainty import DETERMINACY_LIMITS, TILT_DIFFERENCE
 from kikuchipy_geomdic.geometry import MapGeometry
 from kikuchipy_geomdic.patterns import displacement as dsp
 
@@ -354,12 +350,12 @@ def _build_result(
     geometry0: MapGeometry,
     prior: float | None,
     solver: str,
-    standard_errors: dict[str, float] | None = None,
+    standard_errors: dict[str, float],
     adequacy: dict[str, Any] | None = None,
 ) -> GeometryRefinementResult:
     """The :class:`GeometryRefinementResult` of a loop's *outcome*, with
-    the final orientations *rotations* and their NCC *scores*; the
-    standard errors of the DIC field unless *standard_errors* are given."""
+    the final orientations *rotations* and their NCC *scores* and the
+    *standard_errors* of the stage that ended it."""
     names, pts = problem.parameters, problem.points
     state = outcome.state
     geometry, field_after = state.geometry, state.field
@@ -393,7 +389,7 @@ def _build_result(
     det = geometry.detector()
     if len(detector.navigation_shape) == 2 or nav[0] > 1:
         det.pc = det.pc.reshape(signal.axes_manager.navigation_shape[::-1] + (3,))
-    se = _kept(standard_errors or _standard_errors(problem, state, prior), geometry, geometry0)
+    se = _kept(standard_errors, geometry, geometry0)
     # Diagnostics of the average field, the paper's view of the map
     jac = analytic_jacobian(
         geometry, pts, field_after.positions, field_after.counts, names, problem.steps

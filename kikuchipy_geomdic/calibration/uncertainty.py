@@ -142,11 +142,19 @@ def _free_errors(problem: _Problem, state: _State) -> np.ndarray:
     return update.standard_errors
 
 
-def _standard_errors(problem: _Problem, state: _State, prior) -> dict[str, float]:
-    """Standard errors of every refined parameter at the final state, and
-    of the determined tilt difference, from one joint solve, the
-    systematic part included."""
-    return _named_errors(problem.parameters, _total(*_dic_update(problem, state, prior)))
+def _dic_errors(
+    problem: _Problem, state: _State, prior
+) -> tuple[JointUpdate, dict[str, float], dict[str, float]]:
+    """The DIC stage's joint solve at *state* (:func:`_dic_update`) and the
+    standard errors of every refined parameter and of the determined tilt
+    difference: statistical, and with the systematic part."""
+    update, systematic = _dic_update(problem, state, prior)
+    names = problem.parameters
+    return (
+        update,
+        _named_errors(names, update.standard_errors),
+        _named_errors(names, _total(update, systematic)),
+    )
 
 
 def _total(update: JointUpdate, systematic: np.ndarray) -> np.ndarray:

@@ -98,7 +98,7 @@ def test_lobe_left_in_under_the_dynamic_removal():
     signal = EBSD(raw.reshape((2, 2) + shape).astype(np.float32))
     camera.process(signal)
     data = signal.data.reshape(4, -1).astype(np.float64)
-    lobe = _processing._lobe(signal)
+    lobe = _processing._fit_lobe(_processing._static_background(signal))
 
     def misfit(static):
         proc = _Processing(shape, 0.6, shape[1] / 8, 0.2, static=static, lobe=lobe)

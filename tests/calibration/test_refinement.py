@@ -382,7 +382,7 @@ def test_processing_is_estimated(blurred, blurred_results, realistic, realistic_
     # background gives the lobe
     from kikuchipy_geomdic.calibration._processing import (
         _estimate_processing,
-        _lobe,
+        _fit_lobe,
         _static_background,
     )
     from kikuchipy_geomdic.indexing.orientation import master_pattern_arrays
@@ -392,8 +392,8 @@ def test_processing_is_estimated(blurred, blurred_results, realistic, realistic_
         (realistic, realistic_results[1], 96 / 8, True),
     ):
         problem, rot = _problem(sm, res.points)
-        problem.lobe = _lobe(sm.signal)
         problem.background = _static_background(sm.signal)
+        problem.lobe = None if problem.background is None else _fit_lobe(problem.background)
         assert (problem.lobe is None) == (sm.camera is None)
         arrays = master_pattern_arrays(sm.simulator, 20)
         proc = _estimate_processing(problem, arrays, sm.geometry, rot)
@@ -896,9 +896,9 @@ def test_full_field_follows_an_unbinned_dic_stage_that_determines_the_pc(
     # field follows from there instead of being skipped
     import dataclasses
 
-    import kikuchipy_geomdic.calibration._full_field as ff
+    import kikuchipy_geomdic.calibration.uncertainty as unc
 
-    real = ff._dic_update
+    real = unc._dic_update
     binnings = []
 
     def loose_when_binned(problem, state, prior):
@@ -908,7 +908,7 @@ def test_full_field_follows_an_unbinned_dic_stage_that_determines_the_pc(
             update = dataclasses.replace(update, covariance=update.covariance * 1e6)
         return update, systematic
 
-    monkeypatch.setattr(ff, "_dic_update", loose_when_binned)
+    monkeypatch.setattr(unc, "_dic_update", loose_when_binned)
     sm = synthetic.synthetic_map(si_mp, (4, 4), shape=(120, 120), seed=0, orientation_error=0.5)
     with warnings.catch_warnings():
         warnings.simplefilter("error", UserWarning)
