@@ -134,8 +134,8 @@ def _lowpass_matrices(shape: tuple[int, int], sigma: float) -> tuple[np.ndarray,
     sigma) over the pattern with its edges replicated. Modelled instead
     as an uncut Gaussian, the weights differed by up to 2.3 % of a row's,
     which a background lobe makes a PC bias (a Si single crystal at
-    20,000 counts/px: pcx 5.4e-4 off from the truth; 1e-5 with the
-    filter itself)."""
+    20,000 counts/px: pcx 5.4e-4 off from the truth; 1.6e-5 with the
+    filter itself and the lobe fitted without the mean bands)."""
     if sigma <= 0:
         return np.eye(shape[0]), np.eye(shape[1])
     k = int(4 * sigma)
