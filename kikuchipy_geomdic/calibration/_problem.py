@@ -29,7 +29,12 @@ from kikuchipy_geomdic.calibration._crystal import (
     _other_crystal,
 )
 from kikuchipy_geomdic.calibration._points import _experimental, _select_points
-from kikuchipy_geomdic.calibration._processing import _fit_lobe, _static_background
+from kikuchipy_geomdic.calibration._processing import (
+    _bands_divided_out,
+    _fit_lobe,
+    _static_background,
+    _with_mean_bands,
+)
 from kikuchipy_geomdic.calibration.jacobian import analytic_jacobian, finite_difference_jacobian
 from kikuchipy_geomdic.geometry import MapGeometry, rotation_vectors
 from kikuchipy_geomdic.geometry.maps import flat_index
@@ -70,6 +75,9 @@ class _Problem:
     background: np.ndarray | None = field(default=None, repr=False)
     #: The crystal model, if the points are taken as one crystal
     crystal: _Crystal | None = None
+    #: Whether the map's mean pattern, bands and all, was divided out of
+    #: the patterns (:func:`_bands_divided_out`)
+    mean_divided: bool = False
 
     @cached_property
     def lobe(self) -> np.ndarray | None:
@@ -87,22 +95,34 @@ class _Problem:
         kernel (a quarter of kikuchipy's time on 100 patterns)."""
         return ori.project_patterns(rotations, geometry.detector(self.points), self.arrays)
 
+    @cached_property
+    def dic_experimental(self) -> np.ndarray:
+        """The patterns (N, rows, columns), float32, the DIC stage compares
+        with simulations: the experimental ones, or, where the map's mean
+        was divided out of them (:attr:`mean_divided`), those with the
+        static background's bands put back (:func:`_with_mean_bands`)."""
+        if not self.mean_divided:
+            return self.experimental
+        return _with_mean_bands(self.experimental, self.background)
+
     def compare(
         self, geometry: MapGeometry, rotations: Rotation
     ) -> tuple[dsp.DisplacementField, np.ndarray]:
         """Displacement field and NCC (N,) of the patterns simulated at
-        *geometry* against the experimental ones, from one simulation."""
+        *geometry* against the experimental ones (:attr:`dic_experimental`),
+        from one simulation."""
         sim = self.simulate(geometry, rotations).astype(np.float32)
-        field = dsp.measure_displacements(sim, self.experimental, **self.dic_kwargs)
-        return field, _ncc(sim, self.experimental)
+        field = dsp.measure_displacements(sim, self.dic_experimental, **self.dic_kwargs)
+        return field, _ncc(sim, self.dic_experimental)
 
     def measure(self, geometry: MapGeometry, rotations: Rotation) -> dsp.DisplacementField:
         return self.compare(geometry, rotations)[0]
 
     def ncc(self, geometry: MapGeometry, rotations: Rotation) -> np.ndarray:
         """NCC (N,) of the patterns simulated at *geometry* with the
-        experimental ones, full resolution."""
-        return _ncc(self.simulate(geometry, rotations).astype(np.float32), self.experimental)
+        experimental ones (:attr:`dic_experimental`), full resolution."""
+        sim = self.simulate(geometry, rotations).astype(np.float32)
+        return _ncc(sim, self.dic_experimental)
 
     def refine_orientations(
         self, geometry: MapGeometry, rotations: Rotation, binning: int | None = None
@@ -381,6 +401,11 @@ def _prepare_problem(
             "Calibrate a polycrystal (or several crystals) with orientation_model='free', "
             "or one crystal's points only (points=...)"
         )
-    if crystal is None:
+    if crystal is not None:
+        problem = replace(problem, start_rotations=anchors, crystal=crystal)
+    # Judged last: the crystal's checks compare plain simulations
+    if problem.background is None or geometry0 is None:
         return problem
-    return replace(problem, start_rotations=anchors, crystal=crystal)
+    sim = problem.simulate(geometry0, start)
+    divided = _bands_divided_out(problem.background, problem.experimental, sim) is not None
+    return replace(problem, mean_divided=divided)
