@@ -120,7 +120,7 @@ def _full_field_stage(
         # the crystal model's standard errors are never below it, nor those
         # of patterns whose DIC stage saw the map's mean put back
         free_se = None
-        if problem.crystal is not None or problem.mean_divided:
+        if problem.crystal is not None or problem.bands_put_back:
             free_se = _free_errors(problem, outcome.state)
         ff = _full_field(
             problem,

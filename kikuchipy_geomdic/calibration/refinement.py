@@ -391,7 +391,7 @@ def refine_geometry_dic(
         + (
             "; the map's mean pattern, bands and all, was divided out of the patterns: the DIC "
             "stage compares them with its bands put back"
-            if problem.mean_divided
+            if problem.bands_put_back
             else ""
         )
     )
@@ -426,7 +426,7 @@ def _failures(problem, outcome, matched, standard_errors, adequacy, geometry0):
     errors where the patterns did not determine the geometry: features
     that did not match, or a start no step could leave."""
     names = problem.parameters
-    if matched and problem.mean_divided and not adequacy:
+    if matched and problem.bands_put_back and not adequacy:
         # DIC on what dividing by the map's mean left matches the noise as
         # readily as the variants' bands; only the full field models the
         # division (a BaTiO3 domain map whose DIC stage alone moved pcz

@@ -138,7 +138,7 @@ def _free_errors(problem: _Problem, state: _State) -> np.ndarray:
     (:meth:`_Problem.recorded_field`)."""
     solved, _ = solved_parameters(problem.parameters)
     field = state.field
-    if problem.mean_divided:
+    if problem.bands_put_back:
         field = problem.recorded_field(state.geometry, state.rotations)
     linear = _linearise(problem, state.geometry, field, solved)
     offsets = np.zeros((state.rotations.size, 3))
