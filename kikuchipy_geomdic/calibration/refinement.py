@@ -489,5 +489,12 @@ def _mean_divided_note(problem) -> str:
     return (
         "The signal's static background holds these patterns' Kikuchi bands, and the map's "
         "mean pattern was divided out of them: on a map of one crystal (or of few grains) "
-        "that leaves little more than the noise and the variants' differences. " + _DYNAMIC_ONLY
+        "that leaves little more than the noise and the variants' differences. "
+        + _DYNAMIC_ONLY
+        + (
+            "; on one crystal, orientation_model='crystal' puts the static background's bands "
+            "back for the DIC stage"
+            if problem.crystal is None
+            else ""
+        )
     )
