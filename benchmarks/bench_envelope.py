@@ -119,14 +119,23 @@ CELLS = {
 
 
 def envelope_map(
-    kind: str, cell: str, seed: int, own_data: bool = False, dose: float | None = None
+    kind: str,
+    cell: str,
+    seed: int,
+    own_data: bool = False,
+    dose: float | None = None,
+    other_removal: bool = False,
 ) -> synthetic.SyntheticMap:
     """The realistic map of *kind* in *cell* for *seed*; *own_data*: the
     data from the master pattern calibrated with (the simulators'
-    difference taken away); *dose* in counts/px replaces the cell's."""
+    difference taken away); *dose* in counts/px replaces the cell's;
+    *other_removal*: the other background removal than the kind's (the
+    processing cell's) on top of the cell's own change."""
     k, c = KINDS[kind], {**BASE, **CELLS[cell]}
     if dose is not None:
         c["dose"] = dose
+    if other_removal:
+        c["static"] = "other"
     static = k["static"] if c["static"] is None else not k["static"]
     side, px = k["side"], int(c["px"])
     step = c["fov"] / (side - 1)
@@ -251,6 +260,11 @@ def main(argv=None) -> None:
         "--own-data", action="store_true", help="data from the master pattern calibrated with"
     )
     ap.add_argument("--dose", type=float, default=None, help="counts/px instead of the cell's")
+    ap.add_argument(
+        "--other-removal",
+        action="store_true",
+        help="the other background removal on every cell (the processing cell's)",
+    )
     args = ap.parse_args(argv)
     results: dict = {}
     for kind in args.kinds:
@@ -259,7 +273,9 @@ def main(argv=None) -> None:
             for seed in args.seeds:
                 label = f"{kind:7} {cell:11} seed {seed}"
                 with _quiet():
-                    sm = envelope_map(kind, cell, seed, args.own_data, args.dose)
+                    sm = envelope_map(
+                        kind, cell, seed, args.own_data, args.dose, args.other_removal
+                    )
                 reindexing = args.reindex and kind == "domains"
                 if reindexing:
                     print(_reindex_row(f"{label} truth  ", sm, sm.xmap, sm.detector, ops))
