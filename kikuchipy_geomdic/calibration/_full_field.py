@@ -35,7 +35,6 @@ from kikuchipy_geomdic.calibration.solve import JointSystem, solve_joint
 from kikuchipy_geomdic.calibration.uncertainty import (
     _PC,
     DETERMINACY_LIMITS,
-    SIGNIFICANCE,
     TILT_DIFFERENCE,
     UNDETERMINED_RANGE,
     _adequacy,
@@ -122,13 +121,12 @@ def _full_field_stage(
         )
         full_field = False
     adequacy = {}
-    recorded = None
     if full_field and problem.bands_put_back:
-        recorded = _recorded_state(problem, outcome.state, orientation_prior)
-    if recorded is not None:
         # The DIC stage's end, from the patterns as they are: the judge of
         # the full field, and its start
-        outcome = replace(outcome, state=recorded)
+        outcome = replace(
+            outcome, state=_recorded_state(problem, outcome.state, orientation_prior)
+        )
         dic_update, statistical, standard_errors = _dic_errors(
             problem, outcome.state, orientation_prior
         )
@@ -184,21 +182,18 @@ def _full_field_stage(
     return outcome, standard_errors, adequacy
 
 
-def _recorded_state(problem: _Problem, state: _State, prior, steps: int = 3) -> _State | None:
-    """*state* after up to *steps* Gauss-Newton steps of its PC on the
-    patterns as they are (:meth:`_Problem.recorded_field`), with that
-    field; None if the first is not significant (:data:`SIGNIFICANCE`).
-    The bands put back are the map's mean, at no pattern's own PC: on a
-    240 px BaTiO3 domain map the DIC stage ended pcx 1.8e-3 off, the full
-    field 1.1e-3 off at 5.9 of its standard errors; with these steps (the
-    first 9 of theirs) 1.3e-4. Insignificant steps are noise (120 px: a
-    PC 2.8e-4 off went to 1.0e-3)."""
+def _recorded_state(problem: _Problem, state: _State, prior, steps: int = 3) -> _State:
+    """*state* moved by up to *steps* Gauss-Newton steps of its PC on the
+    patterns as they are (:meth:`_Problem.recorded_field`), with the field
+    that measured there. The bands the DIC stage put back are the map's
+    mean, at no pattern's own PC, and pull the PC: on a 240 px BaTiO3
+    domain map the DIC stage ended pcx 1.8e-3 off, the full field from
+    there 1.1e-3 off at 5.9 of its standard errors; one step on the
+    patterns as they are took pcx to 1.2e-4."""
     solved, split = solved_parameters(problem.parameters)
     columns = [solved.index(n) for n in _PC if n in solved]
-    if not columns:
-        return None
     field = problem.recorded_field(state.geometry, state.rotations)
-    for step in range(steps):
+    for _ in range(steps if columns else 0):
         linear = _linearise(problem, state.geometry, field, solved)
         update, _ = _joint_solve(
             field,
@@ -209,17 +204,14 @@ def _recorded_state(problem: _Problem, state: _State, prior, steps: int = 3) -> 
             0.0,
             problem.crystal is not None,
         )
-        z = np.abs(update.delta) / update.standard_errors
-        if step == 0 and not np.any(z > SIGNIFICANCE):
-            return None
         delta = _expand(dict(zip([solved[c] for c in columns], update.delta)), split)
         geometry = state.geometry.updated(delta)
         rotations = state.rotations * rotations_from_vectors(update.rotations)
         field = problem.recorded_field(geometry, rotations)
         state = replace(state, geometry=geometry, rotations=rotations, field=field)
-        if np.all(z < 1):
+        if np.all(np.abs(update.delta) < update.standard_errors):
             break
-    return state
+    return replace(state, field=field)
 
 
 @dataclass(frozen=True)
