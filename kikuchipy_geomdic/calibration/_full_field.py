@@ -19,14 +19,8 @@ import numba as nb
 import numpy as np
 from orix.quaternion import Rotation
 
-from kikuchipy_geomdic.calibration._dic_fit import (
-    _expand,
-    _joint_solve,
-    _linearise,
-    _prior_per_axis,
-    _solved_values,
-)
-from kikuchipy_geomdic.calibration._problem import _LoopOutcome, _Problem, _State, _step_record
+from kikuchipy_geomdic.calibration._dic_fit import _expand, _prior_per_axis, _solved_values
+from kikuchipy_geomdic.calibration._problem import _LoopOutcome, _Problem, _step_record
 from kikuchipy_geomdic.calibration._processing import _estimate_processing
 from kikuchipy_geomdic.calibration._progress import _Progress
 from kikuchipy_geomdic.calibration._systematic import _quadrants, _region_errors
@@ -121,15 +115,6 @@ def _full_field_stage(
         )
         full_field = False
     adequacy = {}
-    if full_field and problem.bands_put_back:
-        # The DIC stage's end, from the patterns as they are: the judge of
-        # the full field, and its start
-        outcome = replace(
-            outcome, state=_recorded_state(problem, outcome.state, orientation_prior)
-        )
-        dic_update, statistical, standard_errors = _dic_errors(
-            problem, outcome.state, orientation_prior
-        )
     if full_field:
         # What the DIC stage's patterns determine with a free rotation each:
         # the crystal model's standard errors are never below it, nor those
@@ -180,38 +165,6 @@ def _full_field_stage(
             for k, v in _inflated(ff.standard_errors, adequacy).items()
         }
     return outcome, standard_errors, adequacy
-
-
-def _recorded_state(problem: _Problem, state: _State, prior, steps: int = 3) -> _State:
-    """*state* moved by up to *steps* Gauss-Newton steps of its PC on the
-    patterns as they are (:meth:`_Problem.recorded_field`), with the field
-    that measured there. The bands the DIC stage put back are the map's
-    mean, at no pattern's own PC, and pull the PC: on a 240 px BaTiO3
-    domain map the DIC stage ended pcx 1.8e-3 off, the full field from
-    there 1.1e-3 off at 5.9 of its standard errors; one step on the
-    patterns as they are took pcx to 1.2e-4."""
-    solved, split = solved_parameters(problem.parameters)
-    columns = [solved.index(n) for n in _PC if n in solved]
-    field = problem.recorded_field(state.geometry, state.rotations)
-    for _ in range(steps if columns else 0):
-        linear = _linearise(problem, state.geometry, field, solved)
-        update, _ = _joint_solve(
-            field,
-            linear,
-            columns,
-            problem.rotation_offsets(state.rotations),
-            _prior_per_axis(prior),
-            0.0,
-            problem.crystal is not None,
-        )
-        delta = _expand(dict(zip([solved[c] for c in columns], update.delta)), split)
-        geometry = state.geometry.updated(delta)
-        rotations = state.rotations * rotations_from_vectors(update.rotations)
-        field = problem.recorded_field(geometry, rotations)
-        state = replace(state, geometry=geometry, rotations=rotations, field=field)
-        if np.all(np.abs(update.delta) < update.standard_errors):
-            break
-    return replace(state, field=field)
 
 
 @dataclass(frozen=True)

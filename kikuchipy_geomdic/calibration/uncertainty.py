@@ -134,11 +134,15 @@ def _dic_update(problem: _Problem, state: _State, prior) -> tuple[JointUpdate, n
 def _free_errors(problem: _Problem, state: _State) -> np.ndarray:
     """The DIC stage's statistical standard errors (K,) at *state* with a
     free rotation per pattern and no prior: what the patterns determine
-    without the crystal model's tie."""
+    without the crystal model's tie; measured on the patterns as they are
+    (:meth:`_Problem.recorded_field`)."""
     solved, _ = solved_parameters(problem.parameters)
-    linear = _linearise(problem, state.geometry, state.field, solved)
+    field = state.field
+    if problem.bands_put_back:
+        field = problem.recorded_field(state.geometry, state.rotations)
+    linear = _linearise(problem, state.geometry, field, solved)
     offsets = np.zeros((state.rotations.size, 3))
-    update, _ = _joint_solve(state.field, linear, range(len(solved)), offsets, None, 0.0, False)
+    update, _ = _joint_solve(field, linear, range(len(solved)), offsets, None, 0.0, False)
     return update.standard_errors
 
 
