@@ -117,11 +117,8 @@ def _full_field_stage(
     adequacy = {}
     if full_field:
         # What the DIC stage's patterns determine with a free rotation each:
-        # the crystal model's standard errors are never below it, nor those
-        # of patterns whose DIC stage saw the map's mean put back
-        free_se = None
-        if problem.crystal is not None or problem.bands_put_back:
-            free_se = _free_errors(problem, outcome.state)
+        # the crystal model's standard errors are never below it
+        free_se = None if problem.crystal is None else _free_errors(problem, outcome.state)
         ff = _full_field(
             problem,
             outcome.state,

@@ -137,9 +137,8 @@ class _Problem:
         ``(1 + c S_i) / (1 + c mean S) ~ 1 + c (S_i - mean S)``). What the
         patterns themselves determine: the bands :attr:`dic_experimental`
         puts back are nearly noise-free, and standard errors from their
-        field missed a domain map's pcx error by 3.7 of them."""
-        if not self.bands_put_back:
-            return self.measure(geometry, rotations)
+        field missed a domain map's pcx error by 3.7 of them. Only for
+        patterns with the map's mean divided out (:attr:`mean_divided`)."""
         sim = self.simulate(geometry, rotations)
         z = ori.standardise(sim.reshape(len(sim), -1))
         sim = (z - z.mean(axis=0)).reshape(sim.shape).astype(np.float32)
