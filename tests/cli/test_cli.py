@@ -837,7 +837,10 @@ def test_ctrl_c_in_a_real_process(tmp_path, data):
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert proc.returncode == 130, err
+    # 130, or death by SIGINT after the message (seen once in CI, with
+    # the message printed: the interrupt reached Python again while it
+    # shut down): a shell reports both as 130
+    assert proc.returncode in (130, -signal.SIGINT), err
     assert err.strip().splitlines()[-1] == "kikuchipy-geomdic: interrupted"
     assert not out.exists() or list(out.iterdir()) == []
 
