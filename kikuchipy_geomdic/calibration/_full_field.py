@@ -29,6 +29,7 @@ from kikuchipy_geomdic.calibration.solve import JointSystem, solve_joint
 from kikuchipy_geomdic.calibration.uncertainty import (
     _PC,
     DETERMINACY_LIMITS,
+    SIGNIFICANCE,
     TILT_DIFFERENCE,
     UNDETERMINED_RANGE,
     _adequacy,
@@ -44,12 +45,23 @@ from kikuchipy_geomdic.geometry import MapGeometry, rotations_from_vectors, solv
 #: when no parameter moves by more than :data:`FULL_FIELD_STOP` of its
 #: standard error.
 FULL_FIELD_ITERATIONS = 5
+#: ... with the crystal model, whose steps move the parent, every pattern
+#: at once, along a valley where a PC change is nearly the parent's
+#: rotation: each went about 0.7 of the way (240 px domain map, the map's
+#: mean divided out: pcx 1.8e-3 off at the DIC stage, 4.1e-4 after five
+#: steps, 2.5e-4 after nine)
+CRYSTAL_FULL_FIELD_ITERATIONS = 10
 FULL_FIELD_STOP = 0.25
 #: ... and no orientation moves by more than this (deg).
 FULL_FIELD_ROTATION_STOP = 0.01
 #: The full field builds its Jacobians again after a step that lowered
 #: chi2 by more than this fraction.
 JACOBIAN_REFRESH = 0.1
+
+#: Largest standard error (deg) an angle can have and still be moved:
+#: :func:`_insignificant_moves` holds an angle that moved by less than
+#: SIGNIFICANCE of them or by more than UNDETERMINED_RANGE.
+_KEEPABLE = UNDETERMINED_RANGE / SIGNIFICANCE
 
 #: RMS displacement (fraction of the width) below which the DIC stage
 #: hands over to the full field: well inside its basin (measured: from
@@ -222,12 +234,23 @@ def _full_field(
     processing = _estimate_processing(problem, problem.arrays, start, state.rotations)
     history = []
     dic_errors = dic_errors or {}
+    # With the crystal model, an angle judged against a free_se above
+    # UNDETERMINED_RANGE / SIGNIFICANCE is held at the end whatever it does:
+    # free until then, it drags the parent and the PC along the valley
+    # they share, and holding it after a far move is a linear guess (240 px
+    # domain map, the map's mean divided out, angles right at the start:
+    # tilt and azimuthal 7 and 6 deg off in two steps, put back, pcx
+    # 1.1e-3 off at 5.9 standard errors; held throughout 4.1e-4 at 0.9)
+    forced = np.zeros(len(solved), bool) if free_se is None else free_se > _KEEPABLE
     unseen = tuple(
         n
-        for n in solved
+        for n, f in zip(solved, forced)
         if n not in _PC
-        and dic_errors.get(TILT_DIFFERENCE if n in ("tilt", "sample_tilt") else n, 0)
-        > UNDETERMINED_RANGE
+        and (
+            f
+            or dic_errors.get(TILT_DIFFERENCE if n in ("tilt", "sample_tilt") else n, 0)
+            > UNDETERMINED_RANGE
+        )
     )
     geometry, rotations, cov, system = _gauss_newton(
         problem,
@@ -447,7 +470,7 @@ def _gauss_newton(
     free = [i for i, nm in enumerate(solved) if nm not in held]
     chi2_prev, weights, last, cov, system = np.inf, None, None, None, None
     chi2_before, stale, used_fresh = np.inf, False, True
-    for it in range(FULL_FIELD_ITERATIONS):
+    for it in range(CRYSTAL_FULL_FIELD_ITERATIONS if common else FULL_FIELD_ITERATIONS):
         # The Jacobians of the first step serve the next steps (in the
         # basin they hardly change; building them is most of the cost):
         # those simulate the patterns only, unless the last step lowered
