@@ -49,7 +49,7 @@ FULL_FIELD_ITERATIONS = 5
 #: at once, along a valley where a PC change is nearly the parent's
 #: rotation: each went about 0.7 of the way (240 px domain map, the map's
 #: mean divided out: pcx 1.8e-3 off at the DIC stage, 4.1e-4 after five
-#: steps, 2.5e-4 after nine)
+#: steps, 2.4e-4 after nine)
 CRYSTAL_FULL_FIELD_ITERATIONS = 10
 FULL_FIELD_STOP = 0.25
 #: ... and no orientation moves by more than this (deg).
