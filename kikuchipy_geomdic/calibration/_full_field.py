@@ -29,7 +29,6 @@ from kikuchipy_geomdic.calibration.solve import JointSystem, solve_joint
 from kikuchipy_geomdic.calibration.uncertainty import (
     _PC,
     DETERMINACY_LIMITS,
-    SIGNIFICANCE,
     TILT_DIFFERENCE,
     UNDETERMINED_RANGE,
     _adequacy,
@@ -38,6 +37,7 @@ from kikuchipy_geomdic.calibration.uncertainty import (
     _inflated,
     _insignificant_moves,
     _named_errors,
+    _unkeepable,
 )
 from kikuchipy_geomdic.geometry import MapGeometry, rotations_from_vectors, solved_parameters
 
@@ -57,11 +57,6 @@ FULL_FIELD_ROTATION_STOP = 0.01
 #: The full field builds its Jacobians again after a step that lowered
 #: chi2 by more than this fraction.
 JACOBIAN_REFRESH = 0.1
-
-#: Largest standard error (deg) an angle can have and still be moved:
-#: :func:`_insignificant_moves` holds an angle that moved by less than
-#: SIGNIFICANCE of them or by more than UNDETERMINED_RANGE.
-_KEEPABLE = UNDETERMINED_RANGE / SIGNIFICANCE
 
 #: RMS displacement (fraction of the width) below which the DIC stage
 #: hands over to the full field: well inside its basin (measured: from
@@ -234,20 +229,20 @@ def _full_field(
     processing = _estimate_processing(problem, problem.arrays, start, state.rotations)
     history = []
     dic_errors = dic_errors or {}
-    # With the crystal model, an angle judged against a free_se above
-    # UNDETERMINED_RANGE / SIGNIFICANCE is held at the end whatever it does:
-    # free until then, it drags the parent and the PC along the valley
+    # With the crystal model, an angle judged against a free_se it cannot
+    # move three of within UNDETERMINED_RANGE is held at the end whatever it
+    # does: free until then, it drags the parent and the PC along the valley
     # they share, and holding it after a far move is a linear guess (240 px
     # domain map, the map's mean divided out, angles right at the start:
     # tilt and azimuthal 7 and 6 deg off in two steps, put back, pcx
     # 1.1e-3 off at 5.9 standard errors; held throughout 4.1e-4 at 0.9)
-    forced = np.zeros(len(solved), bool) if free_se is None else free_se > _KEEPABLE
+    unkeepable = () if free_se is None else _unkeepable(solved, free_se)
     unseen = tuple(
         n
-        for n, f in zip(solved, forced)
+        for n in solved
         if n not in _PC
         and (
-            f
+            n in unkeepable
             or dic_errors.get(TILT_DIFFERENCE if n in ("tilt", "sample_tilt") else n, 0)
             > UNDETERMINED_RANGE
         )
