@@ -85,6 +85,20 @@ def test_blur_is_scipys_gaussian_filter(patterns, dtype, monkeypatch):
     assert np.abs(proc._blur(planes) - expected).max() < tol
 
 
+def test_compared_is_the_pattern_less_its_gaussian_blur(patterns, monkeypatch):
+    # Flattened pixels, as the full field holds them: each plane less its
+    # blur of COMPARED_HIGHPASS widths, the same with OpenCV or scipy
+    flat = patterns[0][:3].reshape(3, -1)
+    sigma = _processing.COMPARED_HIGHPASS * SHAPE[1]
+    blurred = ndimage.gaussian_filter(
+        flat.reshape((3,) + SHAPE), (0, sigma, sigma), mode="nearest"
+    )
+    expected = flat - blurred.reshape(3, -1)
+    assert np.abs(_processing._compared(flat, SHAPE) - expected).max() < 1e-10
+    monkeypatch.setattr(_processing, "_import_cv2", lambda: None)
+    assert np.abs(_processing._compared(flat, SHAPE) - expected).max() < 1e-10
+
+
 def test_lobe_left_in_under_the_dynamic_removal():
     # Counts on the camera's lobe, the dynamic background removed by
     # kikuchipy, the static not: the model with the lobe left in
