@@ -11,6 +11,7 @@ and calibration.
 
 from __future__ import annotations
 
+import functools
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -316,19 +317,22 @@ def _project_out(a, unit, scale):
     return out
 
 
-def _model(problem, arrays, geometry, rotations, solved, processing, jacobians=True):
+def _model(problem, arrays, geometry, rotations, solved, processing, jacobians=True, compare=None):
     """The model patterns (N, P) made by *processing*, and with
     *jacobians* their processed geometry (N, K, P) and rotation-and-PC
-    (N, 6, P) derivative planes (else None, None)."""
+    (N, 6, P) derivative planes (else None, None), those passed through
+    the linear filter *compare* if given (the patterns are not)."""
     n = len(problem.points)
     if not jacobians:
         return processing(problem.simulate(geometry, rotations).reshape(n, -1))[0], None, None
     s0, j_rot, j_pc, chain = _intensity_chain(
         geometry, problem.points, rotations, arrays, solved, INTENSITY_STEPS
     )
-    # The six columns processed, the geometry's made of them after: the
-    # processing is linear, and six are fewer than K + 3
+    # The six columns processed (and filtered), the geometry's made of them
+    # after: both are linear, and six are fewer than K + 3
     s0, six = processing(s0, (j_rot, j_pc))
+    if compare is not None:
+        six = compare(six)
     return s0, np.swapaxes(chain, 1, 2).astype(np.float32) @ six, six
 
 
@@ -340,13 +344,15 @@ def _intensity_system(problem, arrays, geometry, rotations, solved, processing, 
     n = len(problem.points)
     shape = tuple(problem.experimental.shape[1:])
     raw = problem.experimental.reshape(n, -1).astype(np.float64)
-    model, geo, six = _model(problem, arrays, geometry, rotations, solved, processing, jacobians)
     # One crystal's patterns compared high-passed: they all share its
     # simulator's misfit, which a polycrystal's grains average (there the
     # high-pass cost more than it removed: 8-grain Ni maps of 96 px,
     # another simulator's data, PC errors 1.2-1.4e-4 -> 1.6-2.8e-4)
-    hp = _compared if problem.crystal is not None else (lambda planes, shape: planes)
-    e, s0 = hp(raw, shape), hp(model, shape)
+    compare = None if problem.crystal is None else functools.partial(_compared, shape=shape)
+    model, geo, six = _model(
+        problem, arrays, geometry, rotations, solved, processing, jacobians, compare
+    )
+    e, s0 = (raw, model) if compare is None else (compare(raw), compare(model))
     # Gain and offset of each pattern, then projected out of every column:
     # exactly their elimination (variable projection). The two basis
     # vectors, the constant and the centred model, are orthogonal: the
@@ -360,8 +366,8 @@ def _intensity_system(problem, arrays, geometry, rotations, solved, processing, 
     residual = _project_out(e[:, None], unit, -np.ones(n))[..., 0]
     jg = jr = None
     if jacobians:
-        jg = _project_out(hp(geo, shape), unit, gain)
-        jr = _project_out(hp(six[:, :3], shape), unit, gain)
+        jg = _project_out(geo, unit, gain)
+        jr = _project_out(six[:, :3], unit, gain)
     # Shot noise follows the intensities before the high-pass: the fitted
     # model's (the filter is linear, so the gain is the same)
     fitted = gain[:, None] * (model - model.mean(axis=1, keepdims=True))

@@ -82,7 +82,7 @@ _JACOBIANS = ("finite-difference", "analytic")
 _DYNAMIC_ONLY = (
     "Calibrate on patterns with only the dynamic background removed "
     "(EBSD.remove_dynamic_background on the raw patterns): on BaTiO3 domain maps their PC "
-    "ended 3.0e-4 off (median of 8), with the mean divided out 5.3e-4 with standard errors "
+    "ended 2.6e-4 off (median of 8), with the mean divided out 4.9e-4 with standard errors "
     "of about 1e-3"
 )
 
