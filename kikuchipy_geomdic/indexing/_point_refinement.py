@@ -29,16 +29,18 @@ _SIG, _NCC = 11, 12
 
 
 #: Full-resolution evaluations (accelerated steps) of each variant started
-#: at the refined best's variant. Measured on the users maps (doses 30 and
-#: 150, seeds 0-2, detectors true and 1-2 deg off): 8 keeps every call of
-#: 12 (and the c axis of every point), at 137 instead of 156 projections
-#: per point, since reseeding now tries a point alone in its variant among
-#: its neighbours again (before that, 8 lost 3 base and 2 90 deg points at
-#: dose 150). A screen of 3 evaluations, the variants then below 85 % of
-#: the best's NCC not refined further, lost 8 of 63 90 deg points (dose
-#: 30, seed 1: the right 90 deg variant of a point whose best was the
-#: wrong axis dropped)
-VARIANT_EVALUATIONS = 8
+#: at the refined best's variant. The significance of a call is a margin
+#: between refined candidates: one left short of its optimum moves it, and
+#: a point's flag then depends on where the point started. Measured on a 9 x 9
+#: stripe map of 96 px (dose 150) reindexed from users' starts and from the
+#: truth at one detector: 4 of 81 flags differed at 8 evaluations (the
+#: significances' 90th percentile difference 0.50), 3 at 12, none at 16
+#: (0.15) and 24 (0.06); 16 costs 29 % more projections per point than 8.
+#: On the users maps (13 x 13, doses 30 and 150, seeds 0-2, the true
+#: detector) users' starts then flag within 2 points of the truth's starts
+#: on every map (at 8: 25 against 16 on one), with as many right calls or
+#: more (an earlier screen of 3 evaluations lost right 90 deg variants)
+VARIANT_EVALUATIONS = 16
 
 #: A reseeding trial whose refined best scores below this fraction of the
 #: point's own score does not refine its other variants (a seed's result

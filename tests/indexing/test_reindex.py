@@ -682,6 +682,25 @@ def test_user_starts_reindexed_at_true_and_tilted_detector(user_stripes, azimuth
     np.testing.assert_array_equal(from_start[near], label[near])
 
 
+def test_variant_call_does_not_depend_on_the_start(user_stripes):
+    """At one detector, a point's variant significance and flag are the
+    pattern's: reindexed from users' starts (mostly another variant, a few
+    degrees off) and from the true orientations alike. Measured: with 8
+    evaluations per rival variant (before) 4 flags differed and the
+    significances' 90th percentile difference was 0.50; with 16, none and
+    0.15."""
+    sm = user_stripes
+    kw = dict(pseudo_symmetry_ops=variant_operators()[1:], show_progressbar=False)
+    args = (sm.detector, sm.master_pattern, sm.energy)
+    users = reindex(sm.signal, sm.start_xmap, *args, **kw)
+    truth = reindex(sm.signal, sm.xmap, *args, **kw)
+    flagged = users.converged == 0
+    assert 5 <= flagged.sum() <= 60  # some calls within the noise: the test can fail
+    np.testing.assert_array_equal(flagged, truth.converged == 0)
+    diff = np.abs(users.variant_significance - truth.variant_significance)
+    assert np.percentile(diff, 90) < 0.25
+
+
 def test_reseeding_never_lowers_a_score(user_stripes):
     """A neighbour's seed replaces a point's own result only where it
     scores better on the point's own pattern."""
