@@ -25,7 +25,12 @@ from kikuchipy_geomdic.calibration._dic_fit import _expand, _prior_per_axis, _so
 from kikuchipy_geomdic.calibration._problem import _LoopOutcome, _Problem, _step_record
 from kikuchipy_geomdic.calibration._processing import _compared, _estimate_processing
 from kikuchipy_geomdic.calibration._progress import _Progress
-from kikuchipy_geomdic.calibration._systematic import _quadrants, _region_errors
+from kikuchipy_geomdic.calibration._systematic import (
+    _grain_errors,
+    _grain_groups,
+    _quadrants,
+    _region_errors,
+)
 from kikuchipy_geomdic.calibration.jacobian import INTENSITY_STEPS, _intensity_chain
 from kikuchipy_geomdic.calibration.solve import JointSystem, solve_joint
 from kikuchipy_geomdic.calibration.uncertainty import (
@@ -66,6 +71,16 @@ JACOBIAN_REFRESH = 0.1
 #: off, the full field reached the same geometry as after five).
 FULL_FIELD_BASIN = 0.003
 
+#: The DIC stage's PC standard error (statistical) above which the free
+#: model's full field is skipped, its start outside its basin (about
+#: 1e-2). Below, it beats the DIC stage (few-grain Ni maps, another
+#: simulator: 1.1-9.0e-3 off at the DIC stage, 2.3e-4 to 1.6e-3 after,
+#: z <= 1.0; benchmarks 8). Only after a DIC stage that moved: from a
+#: start it could not leave (1.8e-2 off) one ended 5.9e-3 off at 2.7 of
+#: its standard errors. The crystal model's full field needs a determined
+#: PC (DETERMINACY_LIMITS): there the one parent moves every pattern
+FULL_FIELD_GUARD = 3e-3
+
 #: Smallest pixel noise variance of the full field, as a fraction of its
 #: pattern's mean.
 MIN_PIXEL_VARIANCE = 0.3
@@ -83,13 +98,14 @@ def _full_field_stage(
 ) -> tuple[_LoopOutcome, dict[str, float] | None, dict[str, Any]]:
     """What follows the DIC stage's *outcome*: its standard errors, then,
     if *full_field*, the full field from where it ended, checked against
-    it (:func:`_adequacy`). *guarded* (the default): skipped, with a
-    warning, where the DIC stage left a PC undetermined, and the DIC stage
-    run again unbinned (*dic_stage*) unless the user chose the *binning*.
-    Returns the outcome, the standard errors and the adequacy."""
+    it (:func:`_adequacy`). *guarded* (the default): the DIC stage run
+    again unbinned (*dic_stage*) where it left a PC undetermined, unless
+    the user chose the *binning*; the full field skipped, with a warning,
+    where a PC stays so, or above :data:`FULL_FIELD_GUARD` (free model,
+    the DIC stage moved). Returns the outcome, standard errors, adequacy."""
 
-    def undetermined(statistical):
-        return [n for n in _PC if statistical.get(n, 0) > DETERMINACY_LIMITS[n]]
+    def undetermined(statistical, limits=DETERMINACY_LIMITS):
+        return [n for n in _PC if statistical.get(n, 0) > limits[n]]
 
     # Whether the full field's basin is reached is the statistics' say;
     # what is reported without it includes what the patterns share
@@ -109,15 +125,17 @@ def _full_field_stage(
         dic_update, statistical, standard_errors = _dic_errors(
             problem, outcome.state, orientation_prior
         )
-        loose = undetermined(statistical)
+    moved = any(h["accepted"] for h in outcome.history)
+    free = dict.fromkeys(_PC, FULL_FIELD_GUARD)
+    guard = free if problem.crystal is None and moved else DETERMINACY_LIMITS
+    loose = undetermined(statistical, guard)
     if guarded and full_field and loose:
-        # The full field needs a start in its basin, which a PC the
-        # DIC stage leaves undetermined is not (measured: at 0.3
-        # counts/px it converged 2.9e-3 off at 9.7 of its standard
-        # errors, where the DIC stage's own errors covered its error)
+        # The full field needs a start in its basin (measured: at 0.3
+        # counts/px it converged 2.9e-3 off at 9.7 of its standard errors,
+        # where the DIC stage's own errors covered its error)
         warnings.warn(
             f"The full-field stage was skipped: the DIC stage left {', '.join(loose)} "
-            f"undetermined (standard errors above {DETERMINACY_LIMITS[loose[0]]:g}); "
+            f"undetermined (standard errors above {guard[loose[0]]:g}); "
             "the patterns are too noisy or too few for the geometry",
             UserWarning,
             stacklevel=3,
@@ -155,17 +173,15 @@ def _full_field_stage(
             warnings.warn(adequacy["verdict"], UserWarning, stacklevel=3)
         outcome = replace(outcome, state=state, history=outcome.history + ff.history)
         # The PC never below what the DIC stage's patterns determine with
-        # a free rotation each: the check against the DIC stage cannot see
-        # a full-field bias under about three of its standard errors, and
-        # another simulator's misfit is one (few-grain Ni polycrystals
-        # across the envelope: PC errors beyond 3 of the full field's own
-        # on 11 of 26 maps). The crystal model's tie to one parent is an
-        # assumption a shared misfit can fit (BaTiO3 domain maps, 401 x 401
-        # data master pattern: pcy 3.8e-4 off at 8 standard errors, 6.7e-4
-        # at 7; with it 1.5 and 1.2), the angles' too (_full_field); its
-        # DIC stage's own errors carry the quadrants' spread, up to 1e-2 on
-        # a single crystal, too loose
-        floor = standard_errors if free_se is None else _named_errors(problem.parameters, free_se)
+        # a free rotation each, statistically: the check against the DIC
+        # stage misses a full-field bias under about three of its standard
+        # errors, as another simulator's misfit (few-grain Ni maps: beyond 3
+        # of the full field's own on 11 of 26). The crystal model's tie to
+        # one parent, which a shared misfit can fit (BaTiO3 domain maps:
+        # pcy 3.8e-4 off at 8 standard errors; with it 1.5), the angles'
+        # too (_full_field). The DIC stage's systematic part is its own
+        # bias (quadrants: up to 1e-2; grains: 1.5-4e-3 on those Ni maps)
+        floor = statistical if free_se is None else _named_errors(problem.parameters, free_se)
         standard_errors = {
             k: max(v, floor.get(k, 0.0)) if k in _PC or free_se is not None else v
             for k, v in _inflated(ff.standard_errors, adequacy).items()
@@ -263,14 +279,19 @@ def _full_field(
         report,
     )
     # The systematic part first: an angle it leaves undetermined is held
-    # at its start like one the statistics leave undetermined. One crystal
-    # only: over many orientations a shared misfit varies from pattern to
-    # pattern and the cluster-robust errors see it (realistic Ni
-    # polycrystals: every PC error within 2.9 of them), while the quadrants
-    # of a polycrystal, each with a rotation per pattern, are too weak a
-    # fit for their spread to be believed (it raised pcz's error 4.7x)
+    # at its start like one the statistics leave undetermined. One crystal:
+    # the detector's quadrants. A polycrystal: its grains, each sharing a
+    # bias; its quadrants, each with a rotation per pattern, are too weak
+    # a fit for their spread to be believed (it raised pcz's error 4.7x)
     systematic = np.zeros(len(solved))
-    if system is not None and system.common:
+    if system is not None and not system.common:
+        systematic = _grain_errors(
+            JointSystem.build(system.jg, system.jr, system.weights, _prior_per_axis(prior)),
+            system.residual,
+            system.offsets,
+            _grain_groups(np.asarray(system.rotations.flatten().data), problem.grain_group),
+        )
+    elif system is not None:
         systematic = _region_errors(
             system.residual,
             system.jg,

@@ -40,6 +40,7 @@ from kikuchipy_geomdic.geometry import MapGeometry, rotation_vectors
 from kikuchipy_geomdic.geometry.maps import flat_index
 from kikuchipy_geomdic.indexing import orientation as ori
 from kikuchipy_geomdic.indexing.reindex import refine_orientations
+from kikuchipy_geomdic.indexing.variants import _proper_rotations, _variant_table
 from kikuchipy_geomdic.patterns import displacement as dsp
 
 #: The free orientation model warns, and "auto" takes the crystal model,
@@ -83,6 +84,16 @@ class _Problem:
     def lobe(self) -> np.ndarray | None:
         """The background lobe (mean 1) of the static background."""
         return None if self.background is None else _fit_lobe(self.background)
+
+    @cached_property
+    def grain_group(self) -> np.ndarray:
+        """The rotations (m, 4) under which two orientations are one
+        grain's: the crystal's proper rotations, times the variant
+        operators if there are any."""
+        symmetry = self.phase.point_group
+        if self.pseudo_symmetry_ops is None:
+            return _proper_rotations(symmetry)
+        return _variant_table(self.pseudo_symmetry_ops, symmetry)[0].reshape(-1, 4)
 
     @cached_property
     def arrays(self) -> ori.MasterPatternArrays:

@@ -287,11 +287,10 @@ def refine_geometry_dic(
         False for the paper's. The DIC stage then ends once the RMS
         displacement is below 0.3 % of the width, the full field's basin.
         By default it is skipped, with a warning, when the DIC stage
-        leaves a PC parameter undetermined (standard error above
-        :data:`~kikuchipy_geomdic.calibration.uncertainty.DETERMINACY_LIMITS`):
-        the full field needs a start in its basin; True runs it anyway.
-        False: the DIC stage alone, for patterns the model does not
-        describe (see the method page).
+        leaves a PC standard error above 3e-3 (``FULL_FIELD_GUARD``): the
+        full field needs a start in its basin; True runs it anyway. False:
+        the DIC stage alone, for patterns the model does not describe (see
+        the method page).
     show_progressbar
         Whether to show a progress bar over the iterations (tqdm, on
         stderr) and print a header and one line per trial step (stdout).

@@ -120,11 +120,12 @@ class GeometryRefinementResult:
         the full field's, per parameter (``"dic_step"``) and
         in units of their combined standard errors (``"z"``), whether it passed
         (``"consistent"``; if not, the standard errors are inflated to
-        cover the disagreement), a sentence saying so (``"verdict"``) and,
-        with the crystal model, ``"systematic"``: the part of each standard
-        error that a misfit all patterns share adds, from the spread of
-        the full field's solutions on the detector's quadrants, included in
-        :attr:`standard_errors`. Empty when no full field ran.
+        cover the disagreement), a sentence saying so (``"verdict"``) and
+        ``"systematic"``: the part of each standard error that a misfit
+        the patterns share adds, from the spread of the full field's
+        solutions on the detector's quadrants (crystal model) or on groups
+        of grains (free model), included in :attr:`standard_errors`.
+        Empty when no full field ran.
     orientation_model
         The orientation model used: "free" (a rotation per point) or
         "crystal" (one parent orientation in each point's variant with a
@@ -235,7 +236,9 @@ class GeometryRefinementResult:
         sys = {n: v for n, v in self.adequacy.get("systematic", {}).items() if 0 < v < np.inf}
         if sys:
             notes.append(
-                "sigma includes a systematic part (spread of the detector's quadrants): "
+                "sigma includes a systematic part (spread of the "
+                + ("detector's quadrants" if self.crystal else "grains")
+                + "): "
                 + ", ".join(f"{n} {v:.1e}" for n, v in sys.items())
             )
         return "\n".join(lines + notes)

@@ -22,8 +22,13 @@ from kikuchipy_geomdic.calibration._dic_fit import (
     _solved_values,
 )
 from kikuchipy_geomdic.calibration._problem import _Problem, _State
-from kikuchipy_geomdic.calibration._systematic import _quadrants, _region_errors
-from kikuchipy_geomdic.calibration.solve import JointUpdate
+from kikuchipy_geomdic.calibration._systematic import (
+    _grain_errors,
+    _grain_groups,
+    _quadrants,
+    _region_errors,
+)
+from kikuchipy_geomdic.calibration.solve import JointSystem, JointUpdate
 from kikuchipy_geomdic.geometry import MapGeometry, solved_parameters
 
 #: A parameter whose standard error exceeds this (its unit) is poorly
@@ -106,8 +111,9 @@ def _named_errors(names: Sequence[str], solved_errors) -> dict[str, float]:
 def _dic_update(problem: _Problem, state: _State, prior) -> tuple[JointUpdate, np.ndarray]:
     """The DIC stage's joint solve with every parameter free at *state*:
     the step it would take from there and its (statistical) standard
-    errors; and the systematic standard errors (K,) that add to them
-    (zero but for the crystal model)."""
+    errors; and the systematic standard errors (K,) that add to them:
+    the grains' spread (:func:`_grain_errors`) or, with the crystal
+    model, the detector quadrants' (:func:`_region_errors`)."""
     solved, _ = solved_parameters(problem.parameters)
     linear = _linearise(problem, state.geometry, state.field, solved)
     offsets = problem.rotation_offsets(state.rotations)
@@ -120,13 +126,18 @@ def _dic_update(problem: _Problem, state: _State, prior) -> tuple[JointUpdate, n
         0.0,
         problem.crystal is not None,
     )
+    jg, jr, b = linear
     if problem.crystal is None:
-        return update, np.zeros(len(solved))
+        # A polycrystal: what each grain's patterns share, from the
+        # grains' spread (as the full field's)
+        w = _pattern_weights(state.field, var)
+        system = JointSystem.build(jg, jr, w, _prior_per_axis(prior))
+        q = np.asarray(state.rotations.flatten().data)
+        return update, _grain_errors(system, b, offsets, _grain_groups(q, problem.grain_group))
     # One crystal: what the patterns share, from the ROIs' quadrants (as
     # the full field's pixels'). Without it the DIC stage's errors missed
     # a shared misfit by 8-10 of them on a BaTiO3 domain map whose DIC
     # stage stalled outside the full field's basin
-    jg, jr, b = linear
     sys = _region_errors(
         b,
         jg,

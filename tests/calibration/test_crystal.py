@@ -8,7 +8,6 @@ import pytest
 from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.calibration._crystal import NotOneCrystalError, _one_crystal
-from kikuchipy_geomdic.calibration._systematic import _quadrants, _region_errors
 from kikuchipy_geomdic.calibration.solve import solve_joint
 from kikuchipy_geomdic.indexing.variants import variant_operators
 from kikuchipy_geomdic.validation import synthetic
@@ -126,26 +125,6 @@ def test_common_rotation_in_the_joint_solve():
     assert np.abs(pinned.delta - p).max() > 10 * tied.standard_errors.max()
     with pytest.raises(ValueError, match="common rotation needs a prior"):
         solve_joint(jg, jr, b, w, common=True)
-
-
-def test_region_errors_see_a_misfit_the_regions_share_unequally():
-    rng = np.random.default_rng(2)
-    n, ny, nx, k = 20, 8, 8, 2
-    p = ny * nx
-    jg = rng.normal(size=(n, p, k))
-    jr = rng.normal(size=(n, p, 3))
-    w = np.full((n, p), 1e4)
-    noise = rng.normal(scale=1e-2, size=(n, p))
-    kw = dict(prior=1e-3, common=True, shape=_quadrants((ny, nx)), offsets=np.zeros((n, 3)))
-    clean = _region_errors(noise, jg, jr, w, kw["offsets"], kw["prior"], True, kw["shape"])
-    # The top half of the detector pulls parameter 0 one way, the bottom
-    # the other: a misfit no pattern-to-pattern variance sees
-    pull = np.where(np.arange(p) < p // 2, 1.0, -1.0) * 0.05
-    biased = noise - jg[..., 0] * pull[None]
-    sys = _region_errors(biased, jg, jr, w, kw["offsets"], kw["prior"], True, kw["shape"])
-    se = solve_joint(jg, jr, noise, w, prior=1e-3, common=True).standard_errors
-    assert clean[0] < 2 * se[0]
-    assert sys[0] > 0.02
 
 
 def test_crystal_model_on_a_si_single_crystal():
