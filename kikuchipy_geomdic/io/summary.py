@@ -110,9 +110,15 @@ def summary_from_result(result, **inputs) -> dict[str, Any]:
         ``conventions`` (one
         :func:`~kikuchipy_geomdic.io.conventions.export_geometry` record per
         convention), ``refined_parameters``, ``degenerate``,
-        ``converged``, ``orientation_model``, ``calibration`` (points,
-        NCC, displacement),
-        ``history`` and ``inputs``.
+        ``converged``, ``orientation_model``, ``standard_errors`` (each
+        refined parameter's and ``tilt-sample_tilt``'s, in its unit; None
+        where the map does not determine it: kept at its start, or only
+        a difference determined), ``undetermined`` (above
+        ``DETERMINACY_LIMITS``), ``adequacy`` (the check of the full field
+        against the DIC stage: ``verdict``, ``consistent`` and the
+        ``systematic`` part of each standard error; empty without a full
+        field), ``calibration`` (points, NCC, displacement), ``history``
+        and ``inputs``.
 
     Examples
     --------
@@ -143,6 +149,13 @@ def summary_from_result(result, **inputs) -> dict[str, Any]:
         "degenerate": list(result.degenerate),
         "converged": bool(result.converged),
         "orientation_model": getattr(result, "orientation_model", "free"),
+        "standard_errors": dict(result.standard_errors),
+        "undetermined": list(result.undetermined),
+        "adequacy": {
+            k: result.adequacy[k]
+            for k in ("verdict", "consistent", "systematic")
+            if k in result.adequacy
+        },
         "calibration": {
             "points": len(result.points),
             "points_row_col": np.asarray(result.points).tolist(),
@@ -265,25 +278,53 @@ def format_summary(summary: Mapping[str, Any]) -> str:
     Returns
     -------
     text
-        Start and refined values of each parameter, the PC at the
-        reference map position in every convention, and the angles.
+        Start and refined values of each parameter with its standard
+        error ("-" where the map does not determine it), the PC at the
+        reference map position in every convention, the angles, and what
+        the standard errors include.
     """
     g, s = summary["geometry"], summary["start_geometry"]
     refined = set(summary.get("refined_parameters", ()))
-    lines = [f"{'parameter':<13}{'start':>13}{'calibrated':>13}{'change':>13}  unit"]
+    se = summary.get("standard_errors", {})
+    loose = set(summary.get("undetermined", ()))
+
+    def sigma(name, key=None):
+        if name not in refined:
+            return ""
+        v = se.get(key or name)
+        return "-" if v is None else f"{v:.1e}"
+
+    lines = [f"{'parameter':<13}{'start':>13}{'calibrated':>13}{'change':>13}{'sigma':>10}  unit"]
     for name in PARAMETERS:
         unit = "deg" if name in _ANGLES else "PC (Bruker)"
         d = 4 if unit == "deg" else 6
         mark = "" if name in refined else "  (fixed)"
+        mark += "  poorly determined" if name in loose else ""
         lines.append(
             f"{name:<13}{s[name]:>13.{d}f}{g[name]:>13.{d}f}{g[name] - s[name]:>+13.{d}f}"
-            f"  {unit}{mark}"
+            f"{sigma(name):>10}  {unit}{mark}"
         )
+    both = "tilt" in refined or "sample_tilt" in refined
     lines.append(
         f"{'tilt-s_tilt':<13}{s['tilt'] - s['sample_tilt']:>13.4f}"
         f"{g['tilt'] - g['sample_tilt']:>13.4f}"
-        f"{(g['tilt'] - g['sample_tilt']) - (s['tilt'] - s['sample_tilt']):>+13.4f}  deg"
+        f"{(g['tilt'] - g['sample_tilt']) - (s['tilt'] - s['sample_tilt']):>+13.4f}"
+        f"{sigma('tilt' if both else '', 'tilt-sample_tilt'):>10}  deg"
     )
+    if any(n in refined and se.get(n, 0) is None for n in PARAMETERS):
+        lines.append(
+            "sigma '-': not determined by the map (kept at its start, or only the tilt "
+            "difference determined)"
+        )
+    adequacy = summary.get("adequacy", {})
+    if adequacy.get("verdict"):
+        lines.append(adequacy["verdict"])
+    parts = {k: v for k, v in adequacy.get("systematic", {}).items() if v}
+    if parts:
+        lines.append(
+            "sigma includes a systematic part (what the patterns share): "
+            + ", ".join(f"{k} {v:.1e}" for k, v in parts.items())
+        )
     ref = ", ".join(f"{v:g}" for v in g["reference"])
     lines.append("")
     lines.append(

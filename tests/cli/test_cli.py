@@ -344,6 +344,12 @@ def test_refine_calibrates_towards_the_truth(refined, data):
     for k in ("pcx", "pcy", "pcz"):
         assert abs(start[k] - true[k]) > 5e-3  # the start is off: the test can fail
         assert abs(got[k] - true[k]) < 1e-3, (k, got[k], true[k])
+        # ... and the standard errors that say so are written and printed
+        se = summary["standard_errors"][k]
+        assert se == pytest.approx(refined["result"].standard_errors[k])
+        assert abs(got[k] - true[k]) <= 3 * se, (k, got[k] - true[k], se)
+        line = next(li for li in refined["stdout"].splitlines() if li.startswith(k))
+        assert f"{se:.1e}" in line, line
     assert summary["start_geometry"]["pcx"] == pytest.approx(start["pcx"], abs=1e-12)
 
 

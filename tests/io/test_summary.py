@@ -75,3 +75,21 @@ def test_read_summary_errors(tmp_path):
     (tmp_path / "bad.json").write_text("{")
     with pytest.raises(ValueError, match="not a JSON file"):
         su.read_summary(tmp_path / "bad.json")
+
+
+def test_summary_keeps_the_standard_errors(tmp_path, result):
+    summary = su.summary_from_result(result)
+    back = su.read_summary(su.write_summary(summary, tmp_path / "s.json"))
+    for name, v in result.standard_errors.items():
+        if v < float("inf"):
+            assert back["standard_errors"][name] == pytest.approx(v), name
+        else:
+            assert back["standard_errors"][name] is None, name
+    assert back["undetermined"] == list(result.undetermined)
+    assert back["adequacy"].get("verdict") == result.adequacy.get("verdict")
+    text = su.format_summary(back)
+    line = next(li for li in text.splitlines() if li.startswith("pcx"))
+    assert f"{result.standard_errors['pcx']:.1e}" in line
+    # A summary written before the standard errors were kept still prints
+    del back["standard_errors"], back["undetermined"], back["adequacy"]
+    assert "pcx" in su.format_summary(back)
