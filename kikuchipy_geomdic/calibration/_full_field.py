@@ -177,10 +177,9 @@ def _full_field_stage(
         # stage misses a full-field bias under about three of its standard
         # errors, as another simulator's misfit (few-grain Ni maps: beyond 3
         # of the full field's own on 11 of 26). The crystal model's tie to
-        # one parent, which a shared misfit can fit (BaTiO3 domain maps:
-        # pcy 3.8e-4 off at 8 standard errors; with it 1.5), the angles'
-        # too (_full_field). The DIC stage's systematic part is its own
-        # bias (quadrants: up to 1e-2; grains: 1.5-4e-3 on those Ni maps)
+        # one parent, which a shared misfit can fit (domain maps: pcy 8
+        # standard errors off; with it 1.5), the angles' too. The DIC stage's
+        # systematic part is its own bias (quadrants: to 1e-2; grains: 4e-3)
         floor = statistical if free_se is None else _named_errors(problem.parameters, free_se)
         standard_errors = {
             k: max(v, floor.get(k, 0.0)) if k in _PC or free_se is not None else v
@@ -286,7 +285,7 @@ def _full_field(
     systematic = np.zeros(len(solved))
     if system is not None and not system.common:
         systematic = _grain_errors(
-            JointSystem.build(system.jg, system.jr, system.weights, _prior_per_axis(prior)),
+            system.normal,
             system.residual,
             system.offsets,
             _grain_groups(np.asarray(system.rotations.flatten().data), problem.grain_group),
@@ -443,8 +442,8 @@ def _variances(residual, model, floor):
 @dataclass(frozen=True)
 class _System:
     """The full field's linear system at a geometry and orientations:
-    residuals (model minus data), geometry and rotation Jacobians with the
-    nuisances eliminated, pixel weights and the rotation offsets."""
+    residuals (model minus data), Jacobians with the nuisances eliminated,
+    pixel weights, rotation offsets and the normal equations (*normal*)."""
 
     geometry: MapGeometry
     rotations: Rotation
@@ -454,6 +453,7 @@ class _System:
     weights: np.ndarray
     offsets: Any
     common: bool = False
+    normal: JointSystem | None = None
 
 
 def _hold(system: _System, held, start: MapGeometry, solved, split, prior, cov):
@@ -549,7 +549,7 @@ def _gauss_newton(
                 continue
             break
         used_fresh = refresh
-        system = _System(geometry, rotations, residual, jg, jr, weights, offsets, common)
+        system = _System(geometry, rotations, residual, jg, jr, weights, offsets, common, all_free)
         # Cluster-robust over the patterns, as the DIC stage's: pixels of
         # a pattern share its misfit (blur, interpolation), which the
         # white-noise model the bound is made of misses (measured: 2-3 %

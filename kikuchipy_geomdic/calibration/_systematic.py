@@ -143,7 +143,7 @@ def _grain_errors(
     ag = (system.jgw_t @ b[..., None])[..., 0]
     a_inv_r = np.einsum("nij,nj->ni", system.a_inv, ar)
     grad = ag - np.einsum("nki,nk->ni", system.bb, a_inv_r)
-    curv = system.c - np.einsum("nki,nkj->nij", system.bb, system.a_inv_b)
+    curv = system.s_pattern
     full = system.full
     factor = system.solve(b, offsets).variance_factor
     d, v = [], []

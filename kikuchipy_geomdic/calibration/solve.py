@@ -412,7 +412,7 @@ class JointSystem:
     bb: np.ndarray
     c: np.ndarray
     a0: np.ndarray
-    s_red: np.ndarray
+    s_pattern: np.ndarray  # each pattern's reduced normal matrix (N, K, K)
     full: np.ndarray
     mu: np.ndarray
     v: np.ndarray
@@ -476,7 +476,7 @@ class JointSystem:
         # the geometry
         a_inv = np.linalg.pinv(a, hermitian=True)
         a_inv_b = a_inv @ bb
-        s_red = (c - np.einsum("nki,nkj->nij", bb, a_inv_b)).sum(axis=0)
+        s_pattern = c - np.einsum("nki,nkj->nij", bb, a_inv_b)
         full = np.sqrt(np.clip(np.diag(c.sum(axis=0)), 0, None))
         if np.any(full == 0):
             raise ValueError(
@@ -486,7 +486,7 @@ class JointSystem:
         # Scaled by the full sensitivities, the reduced matrix is
         # dimensionless; its eigenvalues say how much of each signature
         # survives the elimination of the rotations
-        s_scaled = s_red / np.outer(full, full)
+        s_scaled = s_pattern.sum(axis=0) / np.outer(full, full)
         mu, v = np.linalg.eigh((s_scaled + s_scaled.T) / 2)
         return cls(
             jg=jg,
@@ -500,7 +500,7 @@ class JointSystem:
             bb=bb,
             c=c,
             a0=a0,
-            s_red=s_red,
+            s_pattern=s_pattern,
             full=full,
             mu=mu,
             v=v,
@@ -576,7 +576,7 @@ class JointSystem:
         # Rotation errors given the geometry (the geometry's own error adds
         # a common part, see covariance)
         rot_sigma = np.sqrt(factor * np.clip(np.diagonal(self.a_inv, axis1=1, axis2=2), 0, None))
-        reduced = np.sqrt(np.clip(np.diag(self.s_red), 0, None))
+        reduced = np.sqrt(np.clip(np.einsum("nkk->k", self.s_pattern), 0, None))
         k = self.k
         # A common rotation is part of every pattern's, marginalised out
         dw = dw + delta[k:] if delta.size > k else dw

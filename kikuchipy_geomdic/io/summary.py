@@ -288,11 +288,11 @@ def format_summary(summary: Mapping[str, Any]) -> str:
     se = summary.get("standard_errors", {})
     loose = set(summary.get("undetermined", ()))
 
-    def sigma(name, key=None):
-        if name not in refined:
+    def sigma(key):
+        # se holds the refined parameters and, with a tilt, their difference
+        if key not in se:
             return ""
-        v = se.get(key or name)
-        return "-" if v is None else f"{v:.1e}"
+        return "-" if se[key] is None else f"{se[key]:.1e}"
 
     lines = [f"{'parameter':<13}{'start':>13}{'calibrated':>13}{'change':>13}{'sigma':>10}  unit"]
     for name in PARAMETERS:
@@ -304,14 +304,13 @@ def format_summary(summary: Mapping[str, Any]) -> str:
             f"{name:<13}{s[name]:>13.{d}f}{g[name]:>13.{d}f}{g[name] - s[name]:>+13.{d}f}"
             f"{sigma(name):>10}  {unit}{mark}"
         )
-    both = "tilt" in refined or "sample_tilt" in refined
     lines.append(
         f"{'tilt-s_tilt':<13}{s['tilt'] - s['sample_tilt']:>13.4f}"
         f"{g['tilt'] - g['sample_tilt']:>13.4f}"
         f"{(g['tilt'] - g['sample_tilt']) - (s['tilt'] - s['sample_tilt']):>+13.4f}"
-        f"{sigma('tilt' if both else '', 'tilt-sample_tilt'):>10}  deg"
+        f"{sigma('tilt-sample_tilt'):>10}  deg"
     )
-    if any(n in refined and se.get(n, 0) is None for n in PARAMETERS):
+    if any(v is None for v in se.values()):
         lines.append(
             "sigma '-': not determined by the map (kept at its start, or only the tilt "
             "difference determined)"
