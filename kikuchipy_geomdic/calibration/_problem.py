@@ -39,6 +39,7 @@ from kikuchipy_geomdic.calibration.jacobian import analytic_jacobian, finite_dif
 from kikuchipy_geomdic.geometry import MapGeometry, rotation_vectors
 from kikuchipy_geomdic.geometry.maps import flat_index
 from kikuchipy_geomdic.indexing import orientation as ori
+from kikuchipy_geomdic.indexing._point_refinement import _VARIANT, _refine_points
 from kikuchipy_geomdic.indexing.reindex import refine_orientations
 from kikuchipy_geomdic.indexing.variants import _proper_rotations, _variant_table
 from kikuchipy_geomdic.patterns import displacement as dsp
@@ -236,39 +237,57 @@ class _Problem:
     def best_variants(self, geometry: MapGeometry, rotations: Rotation) -> Rotation:
         """Return per point the variant ``op * rotation`` its pattern shows.
 
-        Each candidate is first refined at *geometry* (Gauss-Newton on the
-        intensities, :mod:`~kikuchipy_geomdic.indexing.orientation`), then compared
-        by :func:`~kikuchipy_geomdic.indexing.orientation.compare_variants`:
-        unrefined, a right variant a few tenths of a degree off lost to a
+        The candidates are refined at *geometry* and compared as
+        :func:`~kikuchipy_geomdic.indexing.reindex.reindex` does (its
+        per-point refinement, full resolution only): the best of them
+        refined to convergence, the others started at its variants and
+        given a fixed number of steps, then
+        :func:`~kikuchipy_geomdic.indexing.orientation.compare_variants`.
+        Unrefined, a right variant a few tenths of a degree off lost to a
         wrong one refined by the loop (measured with the de-ebsd BaTiO3
-        master pattern: 6 of 36 points kept a wrong variant)."""
+        master pattern: 6 of 36 points kept a wrong variant). Each
+        refined to convergence from its own start, and asked again where
+        it had answered, the same choices took over half of a domain map's
+        calibration (tutorial 03's map, seeds 0-2: 33, 25 and 45 s against
+        15, 13 and 22 s)."""
         ops = self.operators()
         if ops.size == 1:
             return rotations
-        m, n = ops.size, rotations.size
+        where = tuple(geometry.as_dict().values())
+        chosen = self._variant_choices.get((where, rotations.data.tobytes()))
+        if chosen is not None:
+            return chosen
         det = geometry.detector(self.points)
         pcs = det.pc.reshape(-1, 3)
-        pcs = np.repeat(pcs, n, axis=0) if pcs.shape[0] == 1 else pcs
-        om = ori.detector_matrix(det)
-        arrays = self.arrays
-        candidates = np.stack([(op * rotations).data.reshape(-1, 4) for op in ops], axis=1)
-        refined = ori.refine_arrays(
-            np.repeat(self.experimental, m, axis=0),
-            candidates.reshape(-1, 4),
-            np.repeat(pcs, m, axis=0),
-            om,
-            arrays,
-            levels=(1,),
+        pcs = np.repeat(pcs, rotations.size, axis=0) if pcs.shape[0] == 1 else pcs
+        rows = _refine_points(
+            self.experimental,
+            rotations.data.reshape(-1, 4),
+            pcs,
+            self.arrays,
+            ori.detector_matrix(det),
+            (1,),
+            ori.MAX_STEP,
+            False,
+            ops[1:].data,
         )
-        rq = refined.rotations.data.reshape(n, m, 4)
-        k = ori.compare_variants(self.experimental, rq, pcs, om, arrays).variant
-        if not k.any():
-            # The rotations themselves, not their product with the identity
-            # (orix normalises it to within 1e-16): the DIC stage, seeing
-            # a change, chose the variants again in the basin until its
-            # iterations ran out (8 of 36 domain maps "not converged")
-            return rotations
-        return ops[k] * rotations
+        k = rows[:, _VARIANT].astype(np.int64)
+        # The rotations themselves where nothing changes, not their product
+        # with the identity (orix normalises it to within 1e-16): the DIC
+        # stage, seeing a change, chose the variants again in the basin
+        # until its iterations ran out (8 of 36 domain maps "not converged")
+        chosen = ops[k] * rotations if k.any() else rotations
+        # Chosen at a geometry, the variants stand there: asked again from
+        # the same rotations or from those chosen (the DIC stage's last
+        # question is the full field's first), the answer is this one
+        for asked in (rotations, chosen):
+            self._variant_choices[(where, asked.data.tobytes())] = chosen
+        return chosen
+
+    @cached_property
+    def _variant_choices(self) -> dict:
+        """:meth:`best_variants`' answers by geometry and rotations."""
+        return {}
 
     def jacobian(
         self, geometry: MapGeometry, rotations: Rotation, field0: dsp.DisplacementField, kind: str

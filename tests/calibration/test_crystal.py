@@ -426,3 +426,46 @@ def test_dic_stage_ends_in_the_basin_once_the_variants_are_chosen():
     truth = sm.geometry.as_dict()
     for n in ("pcx", "pcy", "pcz"):
         assert abs(res.parameters[n] - truth[n]) < 5e-5, n
+
+
+def test_variants_chosen_once_per_geometry(monkeypatch):
+    # The DIC stage's last choice (at its last geometry) was the full
+    # field's first, refined again: over half of a domain map's time went
+    # to choosing variants. Each (geometry, rotations) is now refined once
+    from kikuchipy_geomdic.calibration import _problem
+
+    asked, refined = [], []
+    refine, choose = _problem._refine_points, _problem._Problem.best_variants
+
+    def spy_refine(patterns, q, pcs, *args, **kwargs):
+        refined.append((pcs.tobytes(), q.tobytes()))
+        return refine(patterns, q, pcs, *args, **kwargs)
+
+    def spy_choose(self, geometry, rotations):
+        asked.append(geometry)
+        return choose(self, geometry, rotations)
+
+    monkeypatch.setattr(_problem, "_refine_points", spy_refine)
+    monkeypatch.setattr(_problem._Problem, "best_variants", spy_choose)
+    sm = synthetic.synthetic_map(
+        "BaTiO3", (6, 6), "stripes", shape=(60, 60), seed=3, start="indexed",
+        orientation_error=1.0,
+    )  # fmt: skip
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = sm.signal.refine_geometry_dic(
+            sm.start_xmap, sm.start_detector, sm.master_pattern, sm.energy,
+            parameters=["pcx", "pcy", "pcz"], pseudo_symmetry_ops=variant_operators()[1:],
+            orientation_model="crystal", show_progressbar=False,
+        )  # fmt: skip
+    # Asked in the DIC stage's basin and at the full field's start, at
+    # one geometry; refined once
+    assert len(asked) >= 2
+    assert 1 <= len(refined) < len(asked)
+    assert len(set(refined)) == len(refined)
+    truth = sm.geometry.as_dict()
+    for n in ("pcx", "pcy", "pcz"):
+        assert abs(res.parameters[n] - truth[n]) < 1e-4, n
+    pg = sm.xmap.phases[0].point_group
+    off = _angle_to(res.xmap.rotations.flatten(), sm.xmap.rotations.flatten(), pg)
+    assert off.max() < 2.0  # every point in its variant
