@@ -253,8 +253,7 @@ class _Problem:
         ops = self.operators()
         if ops.size == 1:
             return rotations
-        where = tuple(geometry.as_dict().values())
-        chosen = self._variant_choices.get((where, rotations.data.tobytes()))
+        chosen = self._variant_choices.get((geometry, rotations.data.tobytes()))
         if chosen is not None:
             return chosen
         det = geometry.detector(self.points)
@@ -281,7 +280,7 @@ class _Problem:
         # the same rotations or from those chosen (the DIC stage's last
         # question is the full field's first), the answer is this one
         for asked in (rotations, chosen):
-            self._variant_choices[(where, asked.data.tobytes())] = chosen
+            self._variant_choices[(geometry, asked.data.tobytes())] = chosen
         return chosen
 
     @cached_property
