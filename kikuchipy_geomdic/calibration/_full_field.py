@@ -126,8 +126,8 @@ def _full_field_stage(
             problem, outcome.state, orientation_prior
         )
     moved = any(h["accepted"] for h in outcome.history)
-    free = dict.fromkeys(_PC, FULL_FIELD_GUARD)
-    guard = free if problem.crystal is None and moved else DETERMINACY_LIMITS
+    loose_start = problem.crystal is None and moved
+    guard = dict.fromkeys(_PC, FULL_FIELD_GUARD) if loose_start else DETERMINACY_LIMITS
     loose = undetermined(statistical, guard)
     if guarded and full_field and loose:
         # The full field needs a start in its basin (measured: at 0.3
