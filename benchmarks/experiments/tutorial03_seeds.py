@@ -2,7 +2,8 @@
 calibrated from users' starts with the crystal model, then reindexed on
 the static- and dynamic-divided patterns from the users' or the true
 orientations at the calibrated or the true detector: right, flagged and
-wrong without a flag per row (``results/crystal/tutorial03_seeds_*.log``).
+wrong without a flag per row, and the calibration's time
+(``results/crystal/tutorial03_seeds_*.log``).
 
 Usage::
 
@@ -50,6 +51,7 @@ sig_re.remove_dynamic_background("divide", show_progressbar=False)
 sig_cal = sm.signal
 truth = sm.xmap.prop["variant"]
 parent = domain_labels(sm.xmap).parent
+t_cal = time.perf_counter()
 with q(), contextlib.redirect_stderr(io.StringIO()):
     res = sig_cal.refine_geometry_dic(
         sm.start_xmap,
@@ -66,6 +68,7 @@ print(
     {n: f"{res.parameters[n] - true[n]:+.1e}" for n in ("pcx", "pcy", "pcz")},
     "angles",
     {n: f"{res.parameters[n] - true[n]:+.2f}" for n in ("tilt", "azimuthal", "sample_tilt")},
+    f"calibrated in {time.perf_counter() - t_cal:.1f} s",
 )
 
 rows = [
