@@ -403,6 +403,7 @@ def refine_geometry_dic(
     outcome, standard_errors, adequacy = _failures(
         problem, outcome, matched, standard_errors, adequacy, geometry0
     )
+    _empty_rois_note(outcome.state.field)
     rotations, scores = _final_orientations(problem, outcome.state, solver, refine_kwargs)
     return _build_result(
         problem,
@@ -472,6 +473,20 @@ def _failures(problem, outcome, matched, standard_errors, adequacy, geometry0):
         standard_errors = _named_errors(names, np.full(len(solved), np.inf))
         adequacy = {}
     return outcome, standard_errors, adequacy
+
+
+def _empty_rois_note(field) -> None:
+    """Warn once about the ROIs the last DIC comparison left without a
+    vector (the measurements of every step do not: :func:`_problem._measure`)."""
+    empty = np.flatnonzero(field.total_counts == 0)
+    if empty.size:
+        warnings.warn(
+            f"{empty.size} of {field.total_counts.size} ROIs got no displacement vector in the "
+            f"calibration's last DIC comparison (ROIs {empty.tolist()}): too few trackable "
+            "features there (a dark corner, a shadow); their weight is zero",
+            UserWarning,
+            stacklevel=3,
+        )
 
 
 def _unmoved(geometry: MapGeometry, geometry0: MapGeometry, names) -> bool:

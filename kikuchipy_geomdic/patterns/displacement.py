@@ -47,6 +47,11 @@ from kikuchipy_geomdic.patterns.vectors import _DIC_DEFAULTS, pattern_vectors, r
 
 __all__ = ["DisplacementField", "measure_displacements"]
 
+#: Start of the warning for ROIs without a vector (a pattern for
+#: ``warnings.filterwarnings``): a calibration, which measures the same
+#: ROIs at every step, says it once instead.
+EMPTY_ROIS_WARNING = r"\d+ of \d+ ROIs got no displacement vector"
+
 
 @dataclass(frozen=True, eq=False)
 class DisplacementField:

@@ -964,6 +964,29 @@ def test_full_field_follows_an_unbinned_dic_stage_that_determines_the_pc(
         assert abs(err[name]) <= 3 * res.standard_errors[name] < 1e-3, name
 
 
+def test_rois_without_vectors_are_named_once(si_mp):
+    # A shadow over the detector's left quarter: its ROIs get no vector at
+    # every step; the calibration says so once, naming them, and
+    # calibrates on the rest
+    sm = synthetic.synthetic_map(si_mp, (4, 4), shape=(120, 120), seed=0, orientation_error=0.5)
+    s = sm.signal.deepcopy()
+    s.data[..., :30] = s.data.mean(axis=(-2, -1), keepdims=True)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = s.refine_geometry_dic(
+            sm.start_xmap, sm.start_detector, sm.master_pattern, sm.energy,
+            points=16, parameters=["pcx", "pcy", "pcz"], show_progressbar=False,
+        )  # fmt: skip
+    notes = [str(w.message) for w in caught if "ROIs got no displacement" in str(w.message)]
+    assert len(notes) == 1, notes
+    assert "last DIC comparison" in notes[0]
+    named = {int(r) for r in notes[0].split("(ROIs [")[1].split("]")[0].split(", ")}
+    assert set(range(0, 64, 8)) <= named  # the first column, wholly in the shadow
+    err, _ = _errors(res, sm)
+    for name in ("pcx", "pcy", "pcz"):
+        assert abs(err[name]) <= 3 * res.standard_errors[name] < 1e-3, name
+
+
 def test_progressbar_paper_solver(tiny, capsys):
     res = _refine_pc(tiny, max_iterations=1, solver="paper", show_progressbar=True)
     out, err = capsys.readouterr()
