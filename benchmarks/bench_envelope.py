@@ -24,7 +24,9 @@ azimuthal 0.5 deg, 200 um field of view, 120 px, 150 counts/px, the start
 one axis to an edge of the envelope (``CELLS``): PC centre low and high,
 detector tilt 0 and 10 deg, field of view 50 um and 2 mm, 60 and 240 px,
 30 and 500 counts/px, the other background removal, the paper's start
-error (pcy 4.6 %, its Table 3).
+error (pcy 4.6 %, its Table 3); and two shapes the others never have,
+patterns of 96 x 128 px (``rect-pattern``) and a map of 0.6 x 1.6 times
+the side at the base step (``rect-map``).
 
 Printed per map and model: PC errors, standard errors, the largest PC
 error over its standard error, the angles' errors with their standard
@@ -115,6 +117,11 @@ CELLS = {
     "dose-500": dict(dose=500.0),
     "processing": dict(static="other"),
     "start-paper": dict(perturbation=PAPER_START),
+    # Not edges of an axis but shapes the square cells never have: patterns
+    # of 96 x 128 px (a 4:3 camera binned), a map of 0.6 x 1.6 the side
+    # at the base cell's step
+    "rect-pattern": dict(shape=(96, 128)),
+    "rect-map": dict(rectangle=True),
 }
 
 
@@ -137,15 +144,19 @@ def envelope_map(
     if other_removal:
         c["static"] = "other"
     static = k["static"] if c["static"] is None else not k["static"]
-    side, px = k["side"], int(c["px"])
+    side = k["side"]
+    shape = c.get("shape", (int(c["px"]), int(c["px"])))
+    nav = (side, side)
+    if c.get("rectangle"):
+        nav = (round(0.6 * side), round(1.6 * side))
     step = c["fov"] / (side - 1)
     geometry = MapGeometry(
-        pc=c["pc"], shape=(px, px), px_size=70.0, binning=480 / px, step_sizes=(step, step),
-        navigation_shape=(side, side), tilt=c["tilt"], azimuthal=c["azimuthal"],
+        pc=c["pc"], shape=shape, px_size=70.0, binning=480 / shape[1], step_sizes=(step, step),
+        navigation_shape=nav, tilt=c["tilt"], azimuthal=c["azimuthal"],
         sample_tilt=70.0, twist=0.0,
     )  # fmt: skip
     return synthetic.synthetic_map(
-        master_patterns.master_pattern(k["phase"], kind=k["mp"]), (side, side),
+        master_patterns.master_pattern(k["phase"], kind=k["mp"]), nav,
         orientations=k["orientations"], geometry=geometry, perturbation=c["perturbation"],
         seed=seed, start="indexed", orientation_error=1.0,
         camera=Camera(dose=c["dose"], static=static),
@@ -289,8 +300,7 @@ def main(argv=None) -> None:
                         )
                         print(row, flush=True)
                 if args.kikuchipy:
-                    side = sm.geometry.navigation_shape[0]
-                    points = np.argwhere(np.ones((side, side), bool))
+                    points = np.argwhere(np.ones(sm.geometry.navigation_shape, bool))
                     row = _kikuchipy_row(f"{kind:7} {cell:11}", seed, sm, points, ops)
                     print(row, flush=True)
     _summary(results)
