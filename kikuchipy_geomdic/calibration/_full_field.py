@@ -249,21 +249,18 @@ def _full_field(
     history = []
     dic_errors = dic_errors or {}
     # With the crystal model, an angle the DIC stage's patterns, a free
-    # rotation each, do not determine (free_se above DETERMINACY_LIMITS) is
-    # held throughout: free, it drags the parent and the PC along the valley
-    # they share, and a shared misfit moves it "significantly" (a domain map
-    # of 96 x 128 px patterns: the tilt from 0.9 to 3.6 deg off at 3.1 of
-    # its standard errors of 1.45 deg); holding it after a far move is a
-    # linear guess (240 px domain map, the map's mean divided out: tilt and
-    # azimuthal 7 and 6 deg off in two steps, put back, pcx 1.1e-3 off at
-    # 5.9 standard errors; held throughout 4.1e-4 at 0.9)
-    unkeepable = () if free_se is None else _loose_angles(solved, free_se)
+    # rotation each, do not determine (free_se) is held throughout: free, it
+    # drags the parent and the PC along the valley they share, and holding
+    # it after a far move is a linear guess (240 px domain map, the map's
+    # mean divided out: tilt and azimuthal 7 and 6 deg off in two steps, put
+    # back, pcx 1.1e-3 off at 5.9 standard errors; held, 4.1e-4 at 0.9)
+    loose = () if free_se is None else _loose_angles(solved, free_se)
     unseen = tuple(
         n
         for n in solved
         if n not in _PC
         and (
-            n in unkeepable
+            n in loose
             or dic_errors.get(TILT_DIFFERENCE if n in ("tilt", "sample_tilt") else n, 0)
             > UNDETERMINED_RANGE
         )
