@@ -43,8 +43,8 @@ from kikuchipy_geomdic.calibration.uncertainty import (
     _free_errors,
     _inflated,
     _insignificant_moves,
-    _loose_angles,
     _named_errors,
+    _unkeepable,
 )
 from kikuchipy_geomdic.geometry import MapGeometry, rotations_from_vectors, solved_parameters
 
@@ -226,10 +226,9 @@ def _full_field(
     Angles whose DIC stage standard errors (*dic_errors*) exceed
     :data:`UNDETERMINED_RANGE` are held from the start: free,
     the first step took the azimuthal of a 65 um BaTiO3 map 20 deg away
-    and ended the full field there. With the crystal model, angles the
-    DIC stage with a free rotation per pattern (*free_se*, solved order)
-    does not determine to :data:`DETERMINACY_LIMITS` are held from the
-    start, and a move is judged against at least *free_se*: the angles are then
+    and ended the full field there. With the crystal model, a move is
+    judged against at least the DIC stage's standard errors with a free
+    rotation per pattern (*free_se*, solved order): the angles are then
     determined by the tie to one parent, which a misfit all patterns
     share can fit (a BaTiO3 domain map from another simulator's data,
     500 counts/px: the tilt moved from 0.9 to 2.8 deg off at 3.2 of the
@@ -248,19 +247,20 @@ def _full_field(
     processing = _estimate_processing(problem, problem.arrays, start, state.rotations)
     history = []
     dic_errors = dic_errors or {}
-    # With the crystal model, an angle the DIC stage's patterns, a free
-    # rotation each, do not determine (free_se) is held throughout: free, it
-    # drags the parent and the PC along the valley they share, and holding
-    # it after a far move is a linear guess (240 px domain map, the map's
-    # mean divided out: tilt and azimuthal 7 and 6 deg off in two steps, put
-    # back, pcx 1.1e-3 off at 5.9 standard errors; held, 4.1e-4 at 0.9)
-    loose = () if free_se is None else _loose_angles(solved, free_se)
+    # With the crystal model, an angle judged against a free_se it cannot
+    # move three of within UNDETERMINED_RANGE is held at the end whatever it
+    # does: free until then, it drags the parent and the PC along the valley
+    # they share, and holding it after a far move is a linear guess (240 px
+    # domain map, the map's mean divided out, angles right at the start:
+    # tilt and azimuthal 7 and 6 deg off in two steps, put back, pcx
+    # 1.1e-3 off at 5.9 standard errors; held throughout 4.1e-4 at 0.9)
+    unkeepable = () if free_se is None else _unkeepable(solved, free_se)
     unseen = tuple(
         n
         for n in solved
         if n not in _PC
         and (
-            n in loose
+            n in unkeepable
             or dic_errors.get(TILT_DIFFERENCE if n in ("tilt", "sample_tilt") else n, 0)
             > UNDETERMINED_RANGE
         )

@@ -403,7 +403,6 @@ def refine_geometry_dic(
     outcome, standard_errors, adequacy = _failures(
         problem, outcome, matched, standard_errors, adequacy, geometry0
     )
-    _empty_rois_note(outcome.state.field)
     rotations, scores = _final_orientations(problem, outcome.state, solver, refine_kwargs)
     return _build_result(
         problem,
@@ -424,7 +423,8 @@ def refine_geometry_dic(
 def _failures(problem, outcome, matched, standard_errors, adequacy, geometry0):
     """The outcome, standard errors and adequacy, with infinite standard
     errors where the patterns did not determine the geometry: features
-    that did not match, or a start no step could leave."""
+    that did not match, or a start no step could leave; and a note of the
+    ROIs without vectors."""
     names = problem.parameters
     if matched and problem.bands_put_back and not adequacy:
         # DIC on what dividing by the map's mean left matches the noise as
@@ -472,6 +472,7 @@ def _failures(problem, outcome, matched, standard_errors, adequacy, geometry0):
         solved, _ = solved_parameters(names)
         standard_errors = _named_errors(names, np.full(len(solved), np.inf))
         adequacy = {}
+    _empty_rois_note(outcome.state.field)
     return outcome, standard_errors, adequacy
 
 
@@ -485,7 +486,7 @@ def _empty_rois_note(field) -> None:
             f"calibration's last DIC comparison (ROIs {empty.tolist()}): too few trackable "
             "features there (a dark corner, a shadow); their weight is zero",
             UserWarning,
-            stacklevel=3,
+            stacklevel=4,
         )
 
 

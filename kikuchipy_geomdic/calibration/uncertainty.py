@@ -85,10 +85,13 @@ def _insignificant_moves(solved: Sequence[str], se, moved) -> tuple[str, ...]:
     )
 
 
-def _loose_angles(solved: Sequence[str], se) -> tuple[str, ...]:
+def _unkeepable(solved: Sequence[str], se) -> tuple[str, ...]:
     """The angles among *solved* (standard errors *se*, in its order) that
-    are above :data:`DETERMINACY_LIMITS`."""
-    return tuple(n for n, sg in zip(solved, se) if n not in _PC and sg > DETERMINACY_LIMITS[n])
+    :func:`_insignificant_moves` holds whatever they do: three standard
+    errors reach beyond :data:`UNDETERMINED_RANGE`."""
+    return tuple(
+        n for n, sg in zip(solved, se) if n not in _PC and SIGNIFICANCE * sg > UNDETERMINED_RANGE
+    )
 
 
 def _named_errors(names: Sequence[str], solved_errors) -> dict[str, float]:
