@@ -235,8 +235,8 @@ def _choose_free(
     the angles are then seen through the tie to one parent, which a misfit
     all patterns share can fit, so a "significant" step is no evidence (a
     domain map of 96 x 128 px patterns: the tilt from 0.9 to 3.6 deg off,
-    accepted at 3.1 standard errors); the full field moves those the
-    patterns determine."""
+    accepted at 3.1 standard errors); the full field judges them against
+    the free-rotation standard errors."""
     se = dict(zip(solved, update.standard_errors))
     step = dict(zip(solved, update.delta))
     poor = [n for n in solved if se[n] > DETERMINACY_LIMITS[n] and n not in carry.moved]
