@@ -276,7 +276,7 @@ def _joint_step(
     update, var = _joint_solve(
         state.field, linear, range(len(solved)), offsets, prior_rad, 0.0, common
     )
-    hold, weak, free, released = _choose_free(solved, update, carry, problem.crystal is not None)
+    hold, weak, free, released = _choose_free(solved, update, carry, one_crystal=common)
     carry = replace(carry, hold=hold, standard_errors=dict(zip(solved, update.standard_errors)))
     # Settled, and no parameter has become determinable since
     if (carry.settled and weak == carry.kept) or not free:
