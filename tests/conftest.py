@@ -5,6 +5,10 @@ read from a kikuchipy data cache, the folder the environment variable
 ``KIKUCHIPY_DATA_DIR`` names. Unless it is set, it is pointed here at
 ``../shared/data/kikuchipy_cache`` beside the repository when that exists,
 so that nothing is downloaded.
+
+Tests of such data skip, saying how to get it, where it cannot be read;
+they fail instead where the run asks for the data: ``KIKUCHIPY_DATA_DIR``
+set before pytest starts (as ``.ci/run`` sets it) or ``--require-data``.
 """
 
 import os
@@ -19,12 +23,30 @@ import pytest
 
 from kikuchipy_geomdic.validation import master_patterns
 
+# Asked for by the environment, before this file points the variable at a
+# cache of its own finding
+_DATA_ASKED = "KIKUCHIPY_DATA_DIR" in os.environ
+
 # kikuchipy reads KIKUCHIPY_DATA_DIR when it first looks for a data set
 # (kikuchipy.data._data.get_fetching_pooch, cached), not on import: set
 # here, before any test runs, it is in time.
 _CACHE = Path(__file__).resolve().parents[2] / "shared" / "data" / "kikuchipy_cache"
-if "KIKUCHIPY_DATA_DIR" not in os.environ and _CACHE.is_dir():
+if not _DATA_ASKED and _CACHE.is_dir():
     os.environ["KIKUCHIPY_DATA_DIR"] = str(_CACHE)
+
+
+def pytest_addoption(parser):
+    parser.addoption(
+        "--require-data",
+        action="store_true",
+        help="fail, not skip, tests whose third-party data cannot be read",
+    )
+
+
+def data_required(config) -> bool:
+    """Whether tests of third-party data fail (True) or skip where it
+    cannot be read."""
+    return _DATA_ASKED or bool(config.getoption("--require-data"))
 
 
 @pytest.fixture(scope="session")
@@ -39,12 +61,12 @@ def bto_mp():
     return master_patterns.master_pattern("BaTiO3", kind="dynamical")
 
 
-def _si_moving_screen(distance: int):
+def _si_moving_screen(distance: int, required: bool = True):
     """kikuchipy's real silicon pattern with the camera moved out by
     *distance* mm (0, 5 or 10), read offline from kikuchipy's data cache.
 
-    Fails (does not skip) the test when the file is not there, naming
-    ``KIKUCHIPY_DATA_DIR``.
+    Where the file cannot be read, the test fails if the data are
+    *required*, and skips otherwise, saying how to get them.
     """
     try:
         return kp.data.si_ebsd_moving_screen(distance, allow_download=False)
@@ -52,22 +74,26 @@ def _si_moving_screen(distance: int):
         problem = error
     # Outside the except clause: the message alone, not kikuchipy's traceback too
     where = os.environ.get("KIKUCHIPY_DATA_DIR", "unset")
-    pytest.fail(
+    message = (
         "kikuchipy's silicon moving-screen patterns (third-party data, not in this "
         "repository) were not found offline. Set KIKUCHIPY_DATA_DIR to the absolute "
         "path of a kikuchipy data cache that holds "
         "<version>/data/silicon_ebsd_moving_screen/ (such as ../shared/data/"
         "kikuchipy_cache beside the repository), or fill kikuchipy's cache once "
         f"online with kp.data.si_ebsd_moving_screen({distance}, allow_download=True). "
-        f"KIKUCHIPY_DATA_DIR: {where}. kikuchipy said: {problem}",
-        pytrace=False,
+        f"KIKUCHIPY_DATA_DIR: {where}. kikuchipy said: {problem}"
     )
+    if required:
+        pytest.fail(message, pytrace=False)
+    pytest.skip(message)
 
 
 @pytest.fixture(scope="session")
-def si_moving_screen():
+def si_moving_screen(pytestconfig):
     """Loader of kikuchipy's real silicon patterns: ``si_moving_screen(5)`` is
     the pattern with the camera moved out by 5 mm, read offline from
-    kikuchipy's data cache; the test fails, naming ``KIKUCHIPY_DATA_DIR``,
-    when it is not there."""
-    return _si_moving_screen
+    kikuchipy's data cache; the test skips, saying how to get them, when
+    they are not there, and fails if the run requires them
+    (:func:`data_required`)."""
+    required = data_required(pytestconfig)
+    return lambda distance: _si_moving_screen(distance, required)

@@ -4,12 +4,16 @@ patterns (H. W. Anes, J. Hjelen, NTNU, kikuchipy-data, CC BY 4.0).
 They are third-party data and not in this repository: they are read offline
 from the kikuchipy data cache that ``KIKUCHIPY_DATA_DIR`` names (conftest
 points it at ``../shared/data/kikuchipy_cache`` when that exists). Without
-them these tests fail, saying so, rather than skip.
+them these tests skip, saying how to get them; they fail when the run asks
+for the data (``KIKUCHIPY_DATA_DIR`` set before pytest starts, as
+``.ci/run`` sets it, or ``--require-data``).
 """
 
+import conftest
 import kikuchipy as kp
 import numpy as np
 import pytest
+from conftest import _si_moving_screen, data_required
 
 NAMES = {0: "si_in", 5: "si_out5mm", 10: "si_out10mm"}
 
@@ -41,13 +45,26 @@ def test_si_moving_screen_patterns_differ(si_moving_screen):
             assert np.abs(data[i] - data[j]).mean() > 1
 
 
-def test_missing_data_fails_naming_the_variable(si_moving_screen, monkeypatch):
-    """Not found offline: the test fails (not skips), saying what to set."""
+def _not_in_cache(distance, allow_download=False, **kwargs):
+    raise ValueError("File data/silicon_ebsd_moving_screen/si_in.h5 must be downloaded")
 
-    def not_in_cache(distance, allow_download=False, **kwargs):
-        raise ValueError("File data/silicon_ebsd_moving_screen/si_in.h5 must be downloaded")
 
-    monkeypatch.setattr(kp.data, "si_ebsd_moving_screen", not_in_cache)
-    with pytest.raises(pytest.fail.Exception, match="KIKUCHIPY_DATA_DIR") as info:
-        si_moving_screen(0)
+@pytest.mark.parametrize("required", [True, False])
+def test_missing_data_names_the_variable(monkeypatch, required):
+    """Not found offline: the test fails where the data are required and
+    skips where not, saying what to set either way."""
+    monkeypatch.setattr(kp.data, "si_ebsd_moving_screen", _not_in_cache)
+    outcome = pytest.fail.Exception if required else pytest.skip.Exception
+    with pytest.raises(outcome, match="KIKUCHIPY_DATA_DIR") as info:
+        _si_moving_screen(0, required)
     assert "must be downloaded" in str(info.value)
+    assert "allow_download=True" in str(info.value)
+
+
+def test_data_required_by_option(pytestconfig, monkeypatch):
+    """``--require-data`` asks for the data whatever the environment."""
+    monkeypatch.setattr(conftest, "_DATA_ASKED", False)
+    monkeypatch.setattr(pytestconfig.option, "require_data", True)
+    assert data_required(pytestconfig)
+    monkeypatch.setattr(pytestconfig.option, "require_data", False)
+    assert not data_required(pytestconfig)
