@@ -132,12 +132,15 @@ def envelope_map(
     own_data: bool = False,
     dose: float | None = None,
     other_removal: bool = False,
+    stretch: float = 1.0,
 ) -> synthetic.SyntheticMap:
     """The realistic map of *kind* in *cell* for *seed*; *own_data*: the
     data from the master pattern calibrated with (the simulators'
     difference taken away); *dose* in counts/px replaces the cell's;
     *other_removal*: the other background removal than the kind's (the
-    processing cell's) on top of the cell's own change."""
+    processing cell's) on top of the cell's own change; *stretch*: the
+    data's crystal has a c axis this many times the CIF's
+    (:func:`~kikuchipy_geomdic.validation.master_patterns.stretched`)."""
     k, c = KINDS[kind], {**BASE, **CELLS[cell]}
     if dose is not None:
         c["dose"] = dose
@@ -155,12 +158,15 @@ def envelope_map(
         navigation_shape=nav, tilt=c["tilt"], azimuthal=c["azimuthal"],
         sample_tilt=70.0, twist=0.0,
     )  # fmt: skip
+    simulator = master_patterns.master_pattern(k["phase"], kind=k["mp" if own_data else "data"])
+    if stretch != 1.0:
+        simulator = master_patterns.stretched(simulator, stretch)
     return synthetic.synthetic_map(
         master_patterns.master_pattern(k["phase"], kind=k["mp"]), nav,
         orientations=k["orientations"], geometry=geometry, perturbation=c["perturbation"],
         seed=seed, start="indexed", orientation_error=1.0,
         camera=Camera(dose=c["dose"], static=static),
-        simulator=master_patterns.master_pattern(k["phase"], kind=k["mp" if own_data else "data"]),
+        simulator=simulator,
     )  # fmt: skip
 
 

@@ -182,3 +182,14 @@ def test_use_block_runs_as_written(files, monkeypatch):
     printed = str(result).splitlines()[: len(shown)]
     assert [without_sigma(ln) for ln in shown] == [without_sigma(ln) for ln in printed]
     assert printed[0] in stdout.getvalue()
+
+
+def test_benchmarks_page_and_changelog_are_a_readers_size():
+    """The benchmarks page answers a user's questions in a minute; the
+    changelog's newest section says what changed, not how."""
+    assert len((ROOT / "benchmarks" / "README.md").read_text().splitlines()) <= 400
+    lines = (ROOT / "CHANGELOG.md").read_text().splitlines()
+    first = next(i for i, line in enumerate(lines) if line.startswith("## ["))
+    later = [i for i in range(first + 1, len(lines)) if lines[i].startswith("## [")]
+    end = later[0] if later else len(lines)
+    assert end - first <= 120

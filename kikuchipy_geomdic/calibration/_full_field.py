@@ -22,12 +22,13 @@ import numpy as np
 from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.calibration._dic_fit import _expand, _prior_per_axis, _solved_values
-from kikuchipy_geomdic.calibration._problem import _LoopOutcome, _Problem, _step_record
+from kikuchipy_geomdic.calibration._problem import _LoopOutcome, _Problem, _State, _step_record
 from kikuchipy_geomdic.calibration._processing import _compared, _estimate_processing
 from kikuchipy_geomdic.calibration._progress import _Progress
 from kikuchipy_geomdic.calibration._systematic import (
+    FEW_GRAINS,
     _grain_errors,
-    _grain_groups,
+    _grains,
     _quadrants,
     _region_errors,
 )
@@ -47,6 +48,7 @@ from kikuchipy_geomdic.calibration.uncertainty import (
     _unkeepable,
 )
 from kikuchipy_geomdic.geometry import MapGeometry, rotations_from_vectors, solved_parameters
+from kikuchipy_geomdic.indexing import orientation as ori
 
 #: Gauss-Newton steps of the full-field stage at most; it stops earlier
 #: when no parameter moves by more than :data:`FULL_FIELD_STOP` of its
@@ -64,6 +66,15 @@ FULL_FIELD_ROTATION_STOP = 0.01
 #: The full field builds its Jacobians again after a step that lowered
 #: chi2 by more than this fraction.
 JACOBIAN_REFRESH = 0.1
+
+#: Longest step of the c axis' stretch (a fraction) in one full-field
+#: iteration: its derivative holds to 6 % over 1e-3, to 25 % over 4e-3 (a
+#: BaTiO3 master pattern); longer, a domain map's first step went to -3.2 %
+#: for data 0.6 % off and the PC ended 1.8e-2 off
+LATTICE_STEP = 2e-3
+#: A fitted stretch farther than this from the CIF's has the full field
+#: choose the variants again at it and go on from there.
+VARIANTS_AGAIN = 2e-3
 
 #: RMS displacement (fraction of the width) below which the DIC stage
 #: hands over to the full field: well inside its basin (measured: from
@@ -155,10 +166,18 @@ def _full_field_stage(
             statistical,
             free_se,
         )
+        if ff.lattice is not None:
+            # The DIC stage's solution at the lattice fitted: at the CIF's
+            # it is biased by the difference the full field fitted
+            at_fit = replace(problem, stretch=1 + ff.lattice["stretch"])
+            dic_state = _State.measure(at_fit, outcome.state.geometry, outcome.state.rotations)
+            dic_update = _dic_errors(at_fit, dic_state, orientation_prior)[0]
         adequacy = _adequacy(
             problem, ff.geometry, ff.standard_errors, ff.held, outcome.state.geometry, dic_update
         )
         adequacy["systematic"] = ff.systematic
+        if ff.lattice is not None:
+            adequacy["lattice"] = ff.lattice
         # The DIC field stays the last one measured, the DIC stage's:
         # measuring it again at the full field's solution, which is within
         # the basin of it, cost a sixth of the calibration
@@ -172,19 +191,19 @@ def _full_field_stage(
         if not adequacy["consistent"]:
             warnings.warn(adequacy["verdict"], UserWarning, stacklevel=3)
         outcome = replace(outcome, state=state, history=outcome.history + ff.history)
-        # The PC never below what the DIC stage's patterns determine with
-        # a free rotation each, statistically: the check against the DIC
-        # stage misses a full-field bias under about three of its standard
-        # errors, as another simulator's misfit (few-grain Ni maps: beyond 3
-        # of the full field's own on 11 of 26). The crystal model's tie to
-        # one parent, which a shared misfit can fit (domain maps: pcy 8
-        # standard errors off; with it 1.5), the angles' too. The DIC stage's
-        # systematic part is its own bias (quadrants: to 1e-2; grains: 4e-3)
-        floor = statistical if free_se is None else _named_errors(problem.parameters, free_se)
-        standard_errors = {
-            k: max(v, floor.get(k, 0.0)) if k in _PC or free_se is not None else v
-            for k, v in _inflated(ff.standard_errors, adequacy).items()
-        }
+        # With the crystal model, never below what the DIC stage's patterns
+        # determine with a free rotation each: the tie to one parent, which
+        # a shared misfit can fit (domain maps: pcy 8 standard errors off;
+        # with it 1.5), the angles' too. A polycrystal's grains' spread
+        # (_grain_errors) sees what its grains share; from fewer than
+        # FEW_GRAINS, the PC's not below the DIC stage's statistical ones
+        standard_errors = _inflated(ff.standard_errors, adequacy)
+        floor = {}
+        if free_se is not None:
+            floor = _named_errors(problem.parameters, free_se)
+        elif ff.grains < FEW_GRAINS:
+            floor = {k: v for k, v in statistical.items() if k in _PC}
+        standard_errors = {k: max(v, floor.get(k, 0.0)) for k, v in standard_errors.items()}
     return outcome, standard_errors, adequacy
 
 
@@ -201,6 +220,11 @@ class _FullField:
     held: tuple[str, ...] = ()
     #: The systematic part of *standard_errors* (:func:`_region_errors`)
     systematic: dict[str, float] | None = None
+    #: The lattice fitted (:meth:`_Problem.lattice_result`), if it was
+    lattice: dict[str, Any] | None = None
+    #: The effective number of grains of a polycrystal's systematic part
+    #: (:func:`_grain_errors`); infinite on one crystal
+    grains: float = np.inf
 
 
 def _full_field(
@@ -236,6 +260,7 @@ def _full_field(
     """
     names = problem.parameters
     solved, split = solved_parameters(names)
+    k = len(solved)
     start = state.geometry
     if problem.pseudo_symmetry_ops is not None:
         # Each pattern fitted with the variant it shows: the DIC stage
@@ -265,30 +290,38 @@ def _full_field(
             > UNDETERMINED_RANGE
         )
     )
-    geometry, rotations, cov, system = _gauss_newton(
-        problem,
-        state,
-        solved,
-        split,
-        unseen,
-        processing,
-        prior,
-        first_it,
-        history,
-        report,
-    )
+    gn = functools.partial(
+        _gauss_newton,
+        solved=solved, split=split, held=unseen, processing=processing, prior=prior,
+        history=history, report=report,
+    )  # fmt: skip
+    geometry, rotations, cov, system, (stretch, stretch_se) = gn(problem, state, first_it=first_it)
+    if problem.pseudo_symmetry_ops is not None and abs(stretch - 1) > VARIANTS_AGAIN:
+        # The variants chosen at the CIF's lattice, again at the one fitted:
+        # a c/a nearer 1 than the CIF's makes 90 deg variants alike, and a
+        # wrong one pulls the lattice on (a domain map of c/a 0.6 % below
+        # the CIF's: the stretch walked to -2 %, PC 5.8e-3 off)
+        at_fit = replace(problem, stretch=stretch)
+        again = at_fit.best_variants(geometry, rotations)
+        if not np.array_equal(again.data, rotations.data):
+            report("  variants chosen again at the fitted lattice")
+            geometry, rotations, cov, system, (stretch, stretch_se) = gn(
+                at_fit,
+                replace(state, geometry=geometry, rotations=again),
+                first_it=first_it + len(history),
+            )
     # The systematic part first: an angle it leaves undetermined is held
     # at its start like one the statistics leave undetermined. One crystal:
     # the detector's quadrants. A polycrystal: its grains, each sharing a
     # bias; its quadrants, each with a rotation per pattern, are too weak
     # a fit for their spread to be believed (it raised pcz's error 4.7x)
-    systematic = np.zeros(len(solved))
+    systematic, grains = np.zeros(len(solved)), np.inf
     if system is not None and not system.common:
-        systematic = _grain_errors(
+        systematic, grains = _grain_errors(
             system.normal,
             system.residual,
             system.offsets,
-            _grain_groups(np.asarray(system.rotations.flatten().data), problem.grain_group),
+            _grains(np.asarray(system.rotations.flatten().data), problem.grain_group),
         )
     elif system is not None:
         systematic = _region_errors(
@@ -300,7 +333,12 @@ def _full_field(
             _prior_per_axis(prior),
             system.common,
             _quadrants(problem.experimental.shape[1:]),
+            system.geometry_prior,
+            system.geometry_offsets,
         )
+    # The lattice's part (its stretch solved last), then the geometry's
+    stretch_se = float(np.hypot(stretch_se, systematic[-1])) if len(systematic) > k else 0.0
+    systematic = systematic[:k]
     se = np.sqrt(np.clip(np.diag(cov), 0, None) + systematic**2)
     moved = _solved_values(geometry, solved, split) - _solved_values(start, solved, split)
     judged = se if free_se is None else np.maximum(se, free_se)
@@ -310,7 +348,12 @@ def _full_field(
         systematic[[solved.index(n) for n in held]] = 0.0
     cov = cov + np.diag(systematic**2)
     se = _named_errors(names, np.sqrt(np.clip(np.diag(cov), 0, None)))
-    return _FullField(geometry, rotations, se, history, held, _named_errors(names, systematic))
+    lattice = None
+    if problem.lattice_prior is not None:
+        lattice = problem.lattice_result(stretch, stretch_se)
+    return _FullField(
+        geometry, rotations, se, history, held, _named_errors(names, systematic), lattice, grains
+    )
 
 
 @nb.njit(cache=True, nogil=True)
@@ -337,30 +380,44 @@ def _project_out(a, unit, scale):
     return out
 
 
-def _model(problem, arrays, geometry, rotations, solved, processing, jacobians=True, compare=None):
-    """The model patterns (N, P) made by *processing*, and with
-    *jacobians* their processed geometry (N, K, P) and rotation-and-PC
-    (N, 6, P) derivative planes (else None, None), those passed through
-    the linear filter *compare* if given (the patterns are not)."""
+def _model(
+    problem, arrays, geometry, rotations, solved, processing, jacobians=True, compare=None,
+    lattice=False,
+):  # fmt: skip
+    """The model patterns (N, P) made by *processing* from the master
+    pattern's *arrays*, and with *jacobians* their processed geometry
+    (N, K, P; with *lattice* the c axis' stretch after them, K + 1) and
+    rotation-and-PC (N, 6, P) derivative planes (else None, None), those
+    passed through the linear filter *compare* if given (the patterns are
+    not)."""
     n = len(problem.points)
     if not jacobians:
-        return processing(problem.simulate(geometry, rotations).reshape(n, -1))[0], None, None
-    s0, j_rot, j_pc, chain = _intensity_chain(
-        geometry, problem.points, rotations, arrays, solved, INTENSITY_STEPS
+        sim = ori.project_patterns(rotations, geometry.detector(problem.points), arrays)
+        return processing(sim.reshape(n, -1))[0], None, None
+    s0, j_rot, j_pc, chain, j_lat = _intensity_chain(
+        geometry, problem.points, rotations, arrays, solved, INTENSITY_STEPS, lattice
     )
     # The six columns processed (and filtered), the geometry's made of them
     # after: both are linear, and six are fewer than K + 3
-    s0, six = processing(s0, (j_rot, j_pc))
+    s0, planes = processing(s0, (j_rot, j_pc) if j_lat is None else (j_rot, j_pc, j_lat))
     if compare is not None:
-        six = compare(six)
-    return s0, np.swapaxes(chain, 1, 2).astype(np.float32) @ six, six
+        planes = compare(planes)
+    six = planes[:, :6]
+    geo = np.swapaxes(chain, 1, 2).astype(np.float32) @ six
+    if j_lat is not None:
+        geo = np.concatenate([geo, planes[:, 6:]], axis=1)
+    return s0, geo, six
 
 
-def _intensity_system(problem, arrays, geometry, rotations, solved, processing, jacobians=True):
+def _intensity_system(
+    problem, arrays, geometry, rotations, solved, processing, jacobians=True, lattice=False
+):
     """Residuals (N, P), geometry and rotation Jacobians with each
-    pattern's gain and offset eliminated, and the pixel noise variances
-    (N, P); the model made by *processing*. Without *jacobians*, only the
-    residuals (the Jacobians None)."""
+    pattern's gain and offset eliminated (with *lattice*, the c axis'
+    stretch a column after the geometry's), and the pixel noise variances
+    (N, P); the model made by *processing* from the master pattern's
+    *arrays*. Without *jacobians*, only the residuals (the Jacobians
+    None)."""
     n = len(problem.points)
     shape = tuple(problem.experimental.shape[1:])
     raw = problem.experimental.reshape(n, -1).astype(np.float64)
@@ -370,7 +427,7 @@ def _intensity_system(problem, arrays, geometry, rotations, solved, processing, 
     # another simulator's data, PC errors 1.2-1.4e-4 -> 1.6-2.8e-4)
     compare = None if problem.crystal is None else functools.partial(_compared, shape=shape)
     model, geo, six = _model(
-        problem, arrays, geometry, rotations, solved, processing, jacobians, compare
+        problem, arrays, geometry, rotations, solved, processing, jacobians, compare, lattice
     )
     e, s0 = (raw, model) if compare is None else (compare(raw), compare(model))
     # Gain and offset of each pattern, then projected out of every column:
@@ -454,6 +511,10 @@ class _System:
     offsets: Any
     common: bool = False
     normal: JointSystem | None = None
+    #: The geometry's prior (standard deviations, the lattice's stretch
+    #: last) and its values against it, if the lattice is fitted
+    geometry_prior: np.ndarray | None = None
+    geometry_offsets: np.ndarray | None = None
 
 
 def _hold(system: _System, held, start: MapGeometry, solved, split, prior, cov):
@@ -497,12 +558,24 @@ def _gauss_newton(
     """The full field's iterations from *state* with the parameters *held*
     fixed; returns the geometry, the rotations and the covariance of all
     *solved* parameters (cluster-robust over the patterns) at the end,
-    and the last linear :class:`_System`."""
-    arrays = problem.arrays
+    the last linear :class:`_System` and the lattice's stretch of the c
+    axis with its standard error (1 and 0 where it is not fitted,
+    :attr:`_Problem.lattice_prior`).
+
+    With a lattice prior the stretch is one more column (after the
+    geometry's), the patterns simulated from the master pattern at the
+    current stretch, the prior holding it about the CIF's lattice."""
+    lattice = problem.lattice_prior
+    fit_lattice = lattice is not None
+    k = len(solved)
+    geo_prior = None if not fit_lattice else np.r_[np.full(k, np.inf), lattice]
+    stretch = problem.stretch
     prior_rad = _prior_per_axis(prior)
     common = problem.crystal is not None
     geometry, rotations = state.geometry, state.rotations
     free = [i for i, nm in enumerate(solved) if nm not in held]
+    # The stretch is solved with the free parameters
+    cols = free + [k] if fit_lattice else free
     chi2_prev, weights, last, cov, system = np.inf, None, None, None, None
     chi2_before, stale, used_fresh = np.inf, False, True
     for it in range(CRYSTAL_FULL_FIELD_ITERATIONS if common else FULL_FIELD_ITERATIONS):
@@ -517,8 +590,9 @@ def _gauss_newton(
         # to 5.5e-4 in five steps, 0.7 of the way each, chi2 hardly lower)
         refresh = it == 0 or stale or chi2_before - chi2_prev > JACOBIAN_REFRESH * chi2_before
         stale = False
+        arrays = problem.lattice_arrays(stretch)
         residual, j_geo, j_rot, var = _intensity_system(
-            problem, arrays, geometry, rotations, solved, processing, jacobians=refresh
+            problem, arrays, geometry, rotations, solved, processing, refresh, fit_lattice
         )
         if weights is None:
             # Weights fixed at the first step, so that chi2 compares steps
@@ -527,12 +601,18 @@ def _gauss_newton(
             jg, jr = j_geo, j_rot
             # Jacobians and weights fixed until the next refresh: their
             # normal equations serve every residual until then
-            all_free = JointSystem.build(jg, jr, weights, prior_rad, common=common)
+            all_free = JointSystem.build(
+                jg, jr, weights, prior_rad, common=common, geometry_prior=geo_prior
+            )
             some_free = all_free
             if free and len(free) < len(solved):
-                some_free = JointSystem.build(jg[..., free], jr, weights, prior_rad, common=common)
+                some_free = JointSystem.build(
+                    jg[..., cols], jr, weights, prior_rad, common=common,
+                    geometry_prior=None if geo_prior is None else geo_prior[cols],
+                )  # fmt: skip
         offsets = problem.rotation_offsets(rotations)
-        full = all_free.solve(residual, offsets)
+        at = None if not fit_lattice else np.r_[np.zeros(k), stretch - 1]
+        full = all_free.solve(residual, offsets, geometry_offsets=at)
         if full.chi2 > chi2_prev:
             # The last step went uphill: undo it and stop, unless, with
             # the crystal model, it was made with older Jacobians than its
@@ -543,13 +623,25 @@ def _gauss_newton(
             # polycrystals' errors both ways, 4-8 % larger in sum
             # (benchmarks/experiments/README.md)
             history[-1]["accepted"] = False
-            geometry, rotations = last
+            geometry, rotations, stretch = last
             if common and not used_fresh:
                 stale = True
                 continue
             break
         used_fresh = refresh
-        system = _System(geometry, rotations, residual, jg, jr, weights, offsets, common, all_free)
+        system = _System(
+            geometry,
+            rotations,
+            residual,
+            jg,
+            jr,
+            weights,
+            offsets,
+            common,
+            all_free,
+            geo_prior,
+            at,
+        )
         # Cluster-robust over the patterns, as the DIC stage's: pixels of
         # a pattern share its misfit (blur, interpolation), which the
         # white-noise model the bound is made of misses (measured: 2-3 %
@@ -559,11 +651,22 @@ def _gauss_newton(
         se = np.sqrt(np.clip(np.diag(cov), 0, None))
         if not free:
             break
-        upd = full if some_free is all_free else some_free.solve(residual, offsets)
-        delta = dict(zip([solved[i] for i in free], map(float, upd.delta)))
-        chi2_before, chi2_prev, last = chi2_prev, full.chi2, (geometry, rotations)
+        if some_free is all_free:
+            upd = full
+        else:
+            upd = some_free.solve(
+                residual, offsets, geometry_offsets=None if at is None else at[cols]
+            )
+        # The stretch's signature is linear over a tenth of a percent only
+        # (sharp bands): a longer step is cut there, the whole step with it
+        step_lattice = float(upd.delta[-1]) if fit_lattice else 0.0
+        cut = min(1.0, LATTICE_STEP / abs(step_lattice)) if step_lattice else 1.0
+        step_lattice *= cut
+        delta = dict(zip([solved[i] for i in free], (cut * float(d) for d in upd.delta)))
+        chi2_before, chi2_prev, last = chi2_prev, full.chi2, (geometry, rotations, stretch)
         geometry = geometry.updated(_expand(delta, split))
-        rotations = rotations * rotations_from_vectors(upd.rotations)
+        rotations = rotations * rotations_from_vectors(cut * upd.rotations)
+        stretch += step_lattice
         history.append(
             _step_record(
                 first_it + it,
@@ -585,15 +688,25 @@ def _gauss_newton(
             f"contrast {processing.contrast:g}, ghost {processing.ghost}"
             + ("" if processing.static else ", static background left in")
             + (f", held {', '.join(held)}" if held else "")
+            + (f", c axis stretch {stretch - 1:+.2e}" if fit_lattice else "")
         )
         # Steps this small leave the covariance as it was; the
         # orientations, refined here too, must have settled as well (with
         # the first step's Jacobians they converge more slowly: a
         # noise-free BaTiO3 map ended 0.052 deg off on average, at 0.05)
         rotation_step = np.rad2deg(np.sqrt((upd.rotations**2).sum(axis=-1)).max())
-        if rotation_step <= FULL_FIELD_ROTATION_STOP and all(
-            abs(delta[solved[i]]) <= FULL_FIELD_STOP * se[i] for i in free
+        if (
+            rotation_step <= FULL_FIELD_ROTATION_STOP
+            and all(abs(delta[solved[i]]) <= FULL_FIELD_STOP * se[i] for i in free)
+            and abs(step_lattice) <= FULL_FIELD_STOP * se[-1]
         ):
             break
-        stale = common and any(abs(delta[solved[i]]) > se[i] for i in free)
-    return geometry, rotations, cov, system
+        stale = cut < 1 or (
+            common
+            and (any(abs(delta[solved[i]]) > se[i] for i in free) or abs(step_lattice) > se[-1])
+        )
+    lattice_se = 0.0
+    if fit_lattice and cov is not None:
+        lattice_se = float(np.sqrt(max(cov[k, k], 0.0)))
+        cov = cov[:k, :k]
+    return geometry, rotations, cov, system, (stretch, lattice_se)

@@ -35,7 +35,11 @@ from kikuchipy_geomdic.calibration._processing import (
     _static_background,
     _with_mean_bands,
 )
-from kikuchipy_geomdic.calibration.jacobian import analytic_jacobian, finite_difference_jacobian
+from kikuchipy_geomdic.calibration.jacobian import (
+    UNIQUE_AXIS_SYSTEMS,
+    analytic_jacobian,
+    finite_difference_jacobian,
+)
 from kikuchipy_geomdic.geometry import MapGeometry, rotation_vectors
 from kikuchipy_geomdic.geometry.maps import flat_index
 from kikuchipy_geomdic.indexing import orientation as ori
@@ -80,6 +84,48 @@ class _Problem:
     #: Whether the map's mean pattern, bands and all, was divided out of
     #: the patterns (:func:`_bands_divided_out`)
     mean_divided: bool = False
+    #: Standard deviation of the crystal's c/a about the master pattern's
+    #: phase's, as a fraction (0: held at it; inf: free)
+    lattice_tolerance: float = 0.0
+    #: The crystal's c axis over the phase's, as simulated (:attr:`arrays`)
+    stretch: float = 1.0
+
+    @property
+    def lattice_prior(self) -> float | None:
+        """The prior's standard deviation of the c axis' stretch that the
+        full field fits, or None where it is not fitted: held (a
+        :attr:`lattice_tolerance` of 0) or a lattice without one unique
+        axis (cubic: no stretch that keeps its symmetry moves a band)."""
+        if not self.lattice_tolerance > 0:
+            return None
+        if self.phase.point_group.system not in UNIQUE_AXIS_SYSTEMS:
+            return None
+        return float(self.lattice_tolerance)
+
+    def lattice_arrays(self, stretch: float) -> ori.MasterPatternArrays:
+        """The master pattern's arrays projecting a crystal whose c axis is
+        *stretch* times the phase's."""
+        if stretch == self.stretch:
+            return self.arrays
+        a = self.arrays
+        return ori.MasterPatternArrays(a.upper, a.lower, a.smoothing, stretch)
+
+    def lattice_result(self, stretch: float, standard_error: float) -> dict[str, Any]:
+        """What the calibration reports of the lattice fitted: the c axis'
+        *stretch* (with its *standard_error*) against the phase's, the
+        c/a it makes and whether the map determines it (its standard
+        error below half the prior's, :attr:`lattice_tolerance`)."""
+        lat = self.phase.structure.lattice
+        ratio = lat.c / lat.a
+        return {
+            "stretch": float(stretch - 1),
+            "stretch_se": float(standard_error),
+            "c_over_a": float(ratio * stretch),
+            "c_over_a_se": float(ratio * standard_error),
+            "phase_c_over_a": float(ratio),
+            "tolerance": float(self.lattice_tolerance),
+            "determined": bool(standard_error < 0.5 * self.lattice_tolerance),
+        }
 
     @cached_property
     def lobe(self) -> np.ndarray | None:
@@ -98,8 +144,14 @@ class _Problem:
 
     @cached_property
     def arrays(self) -> ori.MasterPatternArrays:
-        """The master pattern's hemispheres at the energy, for projection."""
-        return ori.master_pattern_arrays(self.master_pattern, self.energy)
+        """The master pattern's hemispheres at the energy, for projection,
+        of a crystal whose c axis is :attr:`stretch` times the phase's."""
+        a = ori.master_pattern_arrays(self.master_pattern, self.energy)
+        return (
+            a
+            if self.stretch == 1.0
+            else ori.MasterPatternArrays(a.upper, a.lower, 0.0, self.stretch)
+        )
 
     def simulate(self, geometry: MapGeometry, rotations: Rotation) -> np.ndarray:
         """Patterns (N, rows, columns), float64, as kikuchipy's

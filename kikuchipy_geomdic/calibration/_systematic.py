@@ -3,8 +3,8 @@ patterns' shared misfit does to the geometry, measured by solving the
 converged linear system on separate parts of the data. On one crystal:
 regions of the detector (:func:`_region_errors`), the full field's pixels
 or the DIC stage's ROIs grouped into the detector's quadrants
-(:func:`_quadrants`). On a polycrystal: groups of grains
-(:func:`_grain_errors`, :func:`_grain_groups`).
+(:func:`_quadrants`). On a polycrystal: its grains, each left out in
+turn (:func:`_grain_errors`, :func:`_grains`).
 
 A misfit every pattern shares (band profiles changed by the processing,
 another simulator's master pattern, a CIF whose lattice is not the
@@ -16,8 +16,10 @@ apart by more than their noise allows. That excess spread is the
 systematic error reported beside the statistical one. On a polycrystal
 the misfit follows the orientation: a grain's patterns share one bias,
 so a map of few grains averages few biases, while the variance over its
-patterns counts each pattern as independent. The grains, each group
-fitted alone, pull apart by their biases.
+patterns counts each pattern as independent. The geometry's spread over
+the solutions that leave one grain out each (a jackknife over grains)
+sees the grains' biases, and shrinks as the map's grains grow in number,
+as the bias of their mean does.
 
 Layer 6 (calibration): plain arrays in and out; imports only
 :mod:`~kikuchipy_geomdic.calibration.solve` and
@@ -35,12 +37,18 @@ from kikuchipy_geomdic.indexing.variants import TOLERANCE, _nearest
 #: each still spanning the pattern centre's neighbourhood and a corner.
 REGIONS = (2, 2)
 
-#: Groups of grains of a polycrystal's systematic error at most: more
-#: grains are pooled into this many groups of about equal size. Each
-#: group's solution is a full-detector fit of its patterns, so its noise
-#: is about this many times the whole map's variance, and the excess over
-#: it is estimated within about half the whole map's variance.
-GRAIN_GROUPS = 8
+#: Below this many effective grains the grains' spread is itself too
+#: uncertain to stand alone: the full field's PC standard errors are also
+#: never below the DIC stage's statistical ones (maps of six grains, another
+#: simulator's data: 9 of 225 PC errors beyond 3 of the spread's standard
+#: errors; none with the floor). Above it, the spread alone (121 points of
+#: random orientations: RMS error / sigma 1.07, sigma 1.5x the bound).
+FEW_GRAINS = 20
+
+#: Degrees of freedom of the grains' spread at least (a map of about
+#: four grains of equal weight): its variance is scaled by t's,
+#: nu / (nu - 2), which grows without bound below.
+MIN_DOF = 3.0
 
 
 def _quadrants(shape: tuple[int, int], repeat: int = 1) -> np.ndarray:
@@ -61,6 +69,8 @@ def _region_errors(
     prior: float | None,
     common: bool,
     region: np.ndarray,
+    geometry_prior: np.ndarray | None = None,
+    geometry_offsets: np.ndarray | None = None,
 ) -> np.ndarray:
     """Systematic standard errors (K,) of the geometry from the spread of
     its solutions on the detector's :data:`REGIONS`.
@@ -68,7 +78,8 @@ def _region_errors(
     Each region's solution ``d_r`` and covariance ``C_r`` come from the
     linear system of all the pixels (*residual* (N, P), Jacobians
     *jg* (N, P, K) and *jr* (N, P, 3), *weights* (N, P), the orientation
-    prior's *offsets* and *prior*, *common* rotation) with the weights of
+    prior's *offsets* and *prior*, *common* rotation, the geometry's
+    *geometry_prior* and *geometry_offsets*) with the weights of
     the pixels (or components) outside the *region* (P,, labels from
     :func:`_quadrants`) set to zero; ``d_0``, ``C_0`` from all of them. Where
     the model fits, ``d_r - d_0`` scatters with covariance
@@ -77,7 +88,13 @@ def _region_errors(
     their mean, has the systematic variance ``max(0, e) / (R - 1)`` per
     parameter for *R* regions.
     """
-    kw = dict(prior=prior, offsets=offsets, common=common)
+    kw = dict(
+        prior=prior,
+        offsets=offsets,
+        common=common,
+        geometry_prior=geometry_prior,
+        geometry_offsets=geometry_offsets,
+    )
     all_ = solve_joint(jg, jr, residual, weights, **kw)
     excess = []
     for r in range(REGIONS[0] * REGIONS[1]):
@@ -92,13 +109,11 @@ def _region_errors(
     return np.sqrt(np.clip(np.sum(excess, axis=0) / (n * (n - 1)), 0, None))
 
 
-def _grain_groups(q: np.ndarray, group: np.ndarray) -> np.ndarray:
-    """Group label (N,) of each orientation *q* (N, 4): its grain, the
-    orientations within :data:`~kikuchipy_geomdic.indexing.variants.TOLERANCE`
-    of a grain's first one modulo the rotations *group* (m, 4; the crystal's
-    proper rotations, times the variant operators if there are any),
-    pooled into at most :data:`GRAIN_GROUPS` groups of about equal size,
-    the largest grains first."""
+def _grains(q: np.ndarray, group: np.ndarray) -> np.ndarray:
+    """Grain label (N,) of each orientation *q* (N, 4): the orientations
+    within :data:`~kikuchipy_geomdic.indexing.variants.TOLERANCE` of a
+    grain's first one modulo the rotations *group* (m, 4; the crystal's
+    proper rotations, times the variant operators if there are any)."""
     n = len(q)
     grain = np.full(n, -1)
     cos_tol = np.cos(np.deg2rad(TOLERANCE) / 2)
@@ -108,34 +123,26 @@ def _grain_groups(q: np.ndarray, group: np.ndarray) -> np.ndarray:
         free = np.flatnonzero(grain < 0)
         near = _nearest(q[free], q[i], group)[1] >= cos_tol
         grain[free[near]] = grain.max() + 1
-    sizes = np.bincount(grain)
-    out = np.empty(n, dtype=np.int64)
-    filled = np.zeros(min(len(sizes), GRAIN_GROUPS))
-    for g in np.argsort(-sizes, kind="stable"):
-        r = int(np.argmin(filled))
-        out[grain == g] = r
-        filled[r] += sizes[g]
-    return out
+    return grain
 
 
 def _grain_errors(
-    system: JointSystem, residual: np.ndarray, offsets: np.ndarray, groups: np.ndarray
-) -> np.ndarray:
-    """Systematic standard errors (K,) of the geometry from the spread of
-    its solutions on the patterns' *groups* (N,, from :func:`_grain_groups`)
-    of the free orientation model's *system* (no common rotation), for its
-    *residual* (N, M) and rotation *offsets* (N, 3).
+    system: JointSystem, residual: np.ndarray, offsets: np.ndarray, grains: np.ndarray
+) -> tuple[np.ndarray, float]:
+    """Systematic standard errors (K,) of the geometry from its spread over
+    the solutions that leave one of the *grains* (N,, from :func:`_grains`)
+    out, of the free orientation model's *system* (no common rotation), for
+    its *residual* (N, M) and rotation *offsets* (N, 3).
 
-    Each group's solution ``d_r`` and variance ``V_r`` (per parameter) come
-    from the sum of its patterns' reduced (Schur complement) normal
-    equations, so no pattern is fitted again. Groups differ in size (a
-    grain of three points determines the geometry poorly), so their
-    biases' variance ``tau^2`` is the random-effects (DerSimonian-Laird)
-    estimate from ``Q = sum_r (d_r - d)^2 / V_r`` about the weighted mean
-    ``d``, and the whole map's bias, the groups' weighted mean, has the
-    variance ``tau^2 sum_r w_r^2`` with ``w_r`` the weights ``1 / V_r``
-    normalised. Groups whose system is singular are left out; zero for
-    fewer than two groups.
+    Each solution comes from the sum of the other grains' reduced (Schur
+    complement) normal equations, so no pattern is fitted again. The
+    jackknife variance ``(G - 1) / G sum_g (d_g - mean)^2`` over the *G*
+    grains estimates the whole map's variance with what the patterns of a
+    grain share in it; where it exceeds the solve's own (cluster-robust
+    over patterns) variance, the excess is the systematic part. Grains
+    whose removal leaves a singular system are kept in; zero for fewer
+    than three grains. Also returns the effective number of grains, the
+    fewest of any parameter (grains of unequal weight count as fewer).
     """
     k = system.k
     b = np.asarray(residual, dtype=np.float64)
@@ -143,23 +150,34 @@ def _grain_errors(
     ag = (system.jgw_t @ b[..., None])[..., 0]
     a_inv_r = np.einsum("nij,nj->ni", system.a_inv, ar)
     grad = ag - np.einsum("nki,nk->ni", system.bb, a_inv_r)
-    curv = system.s_pattern
     full = system.full
-    factor = system.solve(b, offsets).variance_factor
-    d, v = [], []
-    for g in range(int(groups.max()) + 1 if groups.size else 0):
-        s = curv[groups == g].sum(axis=0) / np.outer(full, full)
+    scale = np.outer(full, full)
+    labels = np.unique(grains)
+    s_g = np.array([system.s_pattern[grains == g].sum(axis=0) for g in labels]) / scale
+    g_g = np.array([grad[grains == g].sum(axis=0) for g in labels]) / full
+    # The geometry's prior (the lattice's) holds every grain's solution
+    s_all = s_g.sum(axis=0) + np.diag(system.geometry_precision) / scale
+    g_all = g_g.sum(axis=0)
+    d = []
+    for s_i, g_i in zip(s_g, g_g):
+        s = s_all - s_i
         mu, vec = np.linalg.eigh((s + s.T) / 2)
         if not mu.min() > 1e-10 * max(mu.max(), 1.0):
             continue
-        inv = (vec / mu) @ vec.T
-        d.append(-(inv @ (grad[groups == g].sum(axis=0) / full)) / full)
-        v.append(factor * np.diag(inv) / full**2)
-    if len(d) < 2:
-        return np.zeros(k)
-    d, u = np.array(d), 1 / np.array(v)
-    total = u.sum(axis=0)
-    mean = (u * d).sum(axis=0) / total
-    q = (u * (d - mean) ** 2).sum(axis=0)
-    tau2 = np.clip(q - (len(d) - 1), 0, None) / (total - (u**2).sum(axis=0) / total)
-    return np.sqrt(tau2 * ((u / total) ** 2).sum(axis=0))
+        d.append(-((vec / mu) @ (vec.T @ (g_all - g_i))) / full)
+    w = np.clip(np.diagonal(s_g, axis1=1, axis2=2), 0, None)
+    effective = w.sum(axis=0) ** 2 / np.maximum((w**2).sum(axis=0), 1e-300)
+    if len(d) < 3:
+        return np.zeros(k), float(effective.min())
+    d = np.array(d)
+    n = len(d)
+    jackknife = (n - 1) / n * ((d - d.mean(axis=0)) ** 2).sum(axis=0)
+    # Estimated from few grains, the variance has few degrees of freedom
+    # and the error over its square root spreads as Student's t: scaled
+    # by t's variance, nu / (nu - 2), its RMS is 1 (six grains of unequal
+    # size sharing a bias each: RMS 1.41 unscaled, 6 % beyond 3). Grains
+    # of unequal weight count as fewer: (sum w)^2 / sum w^2 of each
+    # parameter's information
+    nu = np.maximum(effective - 1, MIN_DOF)
+    model = np.diag(system.solve(b, offsets).covariance)
+    return np.sqrt(np.clip(jackknife * nu / (nu - 2) - model, 0, None)), float(effective.min())

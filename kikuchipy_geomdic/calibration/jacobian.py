@@ -40,7 +40,15 @@ __all__ = [
     "intensity_jacobian",
     "INTENSITY_STEPS",
     "parameter_derivatives",
+    "lattice_derivative",
+    "UNIQUE_AXIS_SYSTEMS",
 ]
+
+#: Crystal systems with one unique axis (crystal z, orix's c): their
+#: lattice may differ from a CIF's by a stretch along it, a change of c/a,
+#: which moves every band. A cubic lattice's only freedom, its scale,
+#: moves none.
+UNIQUE_AXIS_SYSTEMS = ("tetragonal", "hexagonal", "trigonal")
 
 #: Rotation step (radians) of the central difference of the rotation
 #: columns: the forward map is exact, so only round-off limits it.
@@ -353,7 +361,7 @@ def intensity_jacobian(
     >>> s.shape, jg.shape, jr.shape
     ((2, 1600), (2, 1600, 2), (2, 1600, 3))
     """
-    simulated, j_rot, j_pc, chain = _intensity_chain(
+    simulated, j_rot, j_pc, chain, _ = _intensity_chain(
         geometry, points, rotations, arrays, names, steps
     )
     # (N, P, 6) @ (N, 6, K), all columns at once: column by column and
@@ -363,13 +371,76 @@ def intensity_jacobian(
     return simulated, j_geo, j_rot
 
 
-def _intensity_chain(geometry, points, rotations, arrays, names, steps):
+def lattice_derivative(
+    j_rot: np.ndarray, directions: np.ndarray, quaternions: np.ndarray
+) -> np.ndarray:
+    """Return the derivative of simulated patterns by a stretch of the
+    crystal's c axis (its z axis), the relative change ``e`` of c/a.
+
+    A lattice direction ``r`` of the crystal is ``F r`` in a crystal
+    stretched by ``F = I + e c c^T``, so the pattern shows at the crystal
+    direction ``u`` what the master pattern holds at ``F^-1 u``: the
+    intensity changes by ``grad . t`` with ``t = -(u . c) (c - (u . c) u)``,
+    the tangential move. The tangential gradient is ``j_rot x u`` (the
+    rotation derivative is ``u x grad``), all in the sample frame. First
+    order in ``e``, as HR-EBSD's shifts are; the bands' widths, which
+    change with the d-spacings by as little, are not modelled.
+
+    Parameters
+    ----------
+    j_rot
+        (N, P, 3) rotation derivatives of
+        :func:`~kikuchipy_geomdic.indexing.orientation.project_derivatives`.
+    directions
+        (N, P, 3) unit directions of the pixels, sample frame.
+    quaternions
+        (N, 4) orientations (sample to crystal, orix's).
+
+    Returns
+    -------
+    j_lattice
+        (N, P): intensity per unit ``e``.
+
+    Examples
+    --------
+    Against a finite difference of a master pattern of a stretched lattice
+    is what the tests do; here the shapes:
+
+    >>> import numpy as np
+    >>> lattice_derivative(np.zeros((2, 5, 3)), np.ones((2, 5, 3)) / 3**0.5,
+    ...                    np.tile([1.0, 0, 0, 0], (2, 1))).shape
+    (2, 5)
+    """
+    from orix.quaternion import Rotation
+
+    # The c axis in the sample frame: the crystal's z under the inverse
+    c = (~Rotation(np.asarray(quaternions).reshape(-1, 4))).to_matrix()[:, :, 2]
+    u = np.asarray(directions, dtype=np.float64)
+    uc = np.einsum("npi,ni->np", u, c)
+    t = -uc[..., None] * (c[:, None, :] - uc[..., None] * u)
+    return np.einsum("npi,npi->np", np.cross(j_rot, u), t)
+
+
+def _directions(pcs: np.ndarray, shape: tuple[int, int], om: np.ndarray) -> np.ndarray:
+    """Unit directions (N, P, 3), sample frame, of the pixels of detectors
+    with Bruker PCs *pcs* (N, 3), *shape* and detector matrix *om*."""
+    from kikuchipy_geomdic.indexing._lambert import _direction_cosines
+
+    om = np.ascontiguousarray(om, dtype=np.float64)
+    return np.stack(
+        [_direction_cosines(np.asarray(pc, np.float64), shape[0], shape[1], om) for pc in pcs]
+    )
+
+
+def _intensity_chain(geometry, points, rotations, arrays, names, steps, lattice=False):
     """The parts of :func:`intensity_jacobian`: the simulated patterns
     (N, P), their derivatives by rotation (N, P, 3) and by the pattern's
     own PC (N, P, 3), and the chain matrices (N, 6, K) that make the
     geometry's columns of them, ``[j_rot, j_pc] @ chain``. The full field
     processes the six columns and applies the chain after: the processing
-    is linear in the columns, and six are fewer than K + 3."""
+    is linear in the columns, and six are fewer than K + 3. With
+    *lattice*, also the derivative by the c axis' stretch (N, P, 1) of
+    :func:`lattice_derivative` (else None)."""
     from orix.quaternion import Rotation
 
     from kikuchipy_geomdic.indexing.orientation import detector_matrix, project_derivatives
@@ -382,10 +453,15 @@ def _intensity_chain(geometry, points, rotations, arrays, names, steps):
     pcs = det.pc.reshape(-1, 3).astype(np.float64)
     if pcs.shape[0] == 1:
         pcs = np.repeat(pcs, len(q), axis=0)
-    simulated, j_rot, j_pc = project_derivatives(q, pcs, detector_matrix(det), arrays, det.shape)
+    om = detector_matrix(det)
+    simulated, j_rot, j_pc = project_derivatives(q, pcs, om, arrays, det.shape)
 
     def column(name, step):
         rot, dpc = parameter_derivatives(geometry, pts, name, step)
         return np.concatenate(np.broadcast_arrays(rot, dpc), axis=-1)
 
-    return simulated, j_rot, j_pc, _assemble(names, steps, column, axis=-1)
+    chain = _assemble(names, steps, column, axis=-1)
+    if not lattice:
+        return simulated, j_rot, j_pc, chain, None
+    j_lat = lattice_derivative(j_rot, _directions(pcs, det.shape, om), q)
+    return simulated, j_rot, j_pc, chain, j_lat[..., None]

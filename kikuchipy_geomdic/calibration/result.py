@@ -123,9 +123,10 @@ class GeometryRefinementResult:
         cover the disagreement), a sentence saying so (``"verdict"``) and
         ``"systematic"``: the part of each standard error that a misfit
         the patterns share adds, from the spread of the full field's
-        solutions on the detector's quadrants (crystal model) or on groups
-        of grains (free model), included in :attr:`standard_errors`.
-        Empty when no full field ran.
+        solutions on the detector's quadrants (crystal model) or over the
+        grains left out in turn (free model), included in
+        :attr:`standard_errors`; ``"lattice"`` where the full field fitted
+        the lattice (:attr:`lattice`). Empty when no full field ran.
     orientation_model
         The orientation model used: "free" (a rotation per point) or
         "crystal" (one parent orientation in each point's variant with a
@@ -166,6 +167,20 @@ class GeometryRefinementResult:
 
     def __repr__(self) -> str:
         return self.table()
+
+    @property
+    def lattice(self) -> dict[str, Any]:
+        """The crystal's lattice as the full field fitted it (``lattice_tolerance``
+        of :func:`~kikuchipy_geomdic.calibration.refinement.refine_geometry_dic`):
+        ``"stretch"`` of the c axis against the CIF's (a fraction) and its
+        ``"stretch_se"``, the ``"c_over_a"`` it makes with its
+        ``"c_over_a_se"`` and the CIF's ``"phase_c_over_a"``, the prior's
+        ``"tolerance"``, and whether the map ``"determined"`` it (its
+        standard error below half the tolerance; if not, the PC's
+        standard errors carry the tolerance). Empty where it was not
+        fitted: a cubic crystal, ``lattice_tolerance=0`` or no full field.
+        """
+        return dict(self.adequacy.get("lattice", {}))
 
     def table(self, truth: MapGeometry | None = None) -> str:
         """Return start and refined values with standard errors as text.
@@ -240,6 +255,18 @@ class GeometryRefinementResult:
                 + ("detector's quadrants" if self.crystal else "grains")
                 + "): "
                 + ", ".join(f"{n} {v:.1e}" for n, v in sys.items())
+            )
+        lattice = self.lattice
+        if lattice:
+            notes.append(
+                f"c/a {lattice['c_over_a']:.5f} +- {lattice['c_over_a_se']:.5f} (the CIF's "
+                f"{lattice['phase_c_over_a']:.5f}, stretch {lattice['stretch']:+.2%}), "
+                + (
+                    "fitted with the geometry"
+                    if lattice["determined"]
+                    else f"not determined by this map: the PC's sigma carries its "
+                    f"{lattice['tolerance']:.1%} tolerance"
+                )
             )
         return "\n".join(lines + notes)
 

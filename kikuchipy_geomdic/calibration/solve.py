@@ -318,6 +318,8 @@ def solve_joint(
     damping: float = 0.0,
     rtol: float = 1e-10,
     common: bool = False,
+    geometry_prior: np.ndarray | None = None,
+    geometry_offsets: np.ndarray | None = None,
 ) -> JointUpdate:
     r"""Return the geometry and per-pattern rotation updates, solved jointly.
 
@@ -369,6 +371,12 @@ def solve_joint(
         unknowns; the *prior* (required) holds each pattern's scatter
         :math:`\omega_i + \delta\omega_i` about it (one crystal).
         :math:`\Omega` is added to :attr:`JointUpdate.rotations`.
+    geometry_prior
+        Standard deviations (K,) of a Gaussian prior, about zero, on the
+        geometry parameters' values (``inf`` where none): adds
+        :math:`\sum_k (p_k + \Delta p_k)^2 / \sigma_k^2`, with
+        :math:`p_k` the *geometry_offsets* (K,; default zero), the
+        parameters' current values against the prior's centre.
 
     Returns
     -------
@@ -390,8 +398,8 @@ def solve_joint(
     >>> np.round(u.delta, 9).tolist(), np.round(u.rotations, 9).tolist()
     ([0.3], [[0.1, 0.0, 0.0], [0.0, -0.2, 0.05]])
     """
-    system = JointSystem.build(j_geo, j_rot, weights, prior, rtol, common)
-    return system.solve(residual, offsets, damping)
+    system = JointSystem.build(j_geo, j_rot, weights, prior, rtol, common, geometry_prior)
+    return system.solve(residual, offsets, damping, geometry_offsets)
 
 
 @dataclass(frozen=True, eq=False)
@@ -413,6 +421,7 @@ class JointSystem:
     c: np.ndarray
     a0: np.ndarray
     s_pattern: np.ndarray  # each pattern's reduced normal matrix (N, K, K)
+    geometry_precision: np.ndarray  # the geometry prior's (K,), 0 where none
     full: np.ndarray
     mu: np.ndarray
     v: np.ndarray
@@ -429,15 +438,17 @@ class JointSystem:
         prior: float | None = None,
         rtol: float = 1e-10,
         common: bool = False,
+        geometry_prior: np.ndarray | None = None,
     ) -> JointSystem:
         """Build the normal equations of a joint solve.
 
         Parameters
         ----------
-        j_geo, j_rot, weights, prior, rtol, common
+        j_geo, j_rot, weights, prior, rtol, common, geometry_prior
             As in :func:`solve_joint`: Jacobians (N, M, K) and (N, M, 3),
             inverse variances (N, M), the prior (radians or None), the
-            tolerance of undetermined directions, the common rotation.
+            tolerance of undetermined directions, the common rotation,
+            the geometry's prior (standard deviations (K,) or None).
 
         Returns
         -------
@@ -459,10 +470,17 @@ class JointSystem:
         if prior is not None and not (np.isfinite(p) and prior > 0):
             raise ValueError(f"prior must be a positive standard deviation, not {prior}")
         k = jg.shape[2]
+        precision = np.zeros(k)
+        if geometry_prior is not None:
+            sd = np.asarray(geometry_prior, dtype=np.float64)
+            if sd.shape != (k,) or not (sd > 0).all():
+                raise ValueError(f"geometry_prior must be {k} positive standard deviations")
+            precision = 1.0 / sd**2
         if common and prior is None:
             raise ValueError("a common rotation needs a prior: else it is every pattern's own")
         if common:  # it moves every pattern as the pattern's own does
             jg = np.concatenate([jg, jr], axis=2)
+            precision = np.concatenate([precision, np.zeros(3)])
         # Batched matrix products (BLAS): einsum over the M vectors or
         # pixels of a full-field system took most of its time
         jgw_t = np.swapaxes(jg * w[..., None], 1, 2)
@@ -486,7 +504,7 @@ class JointSystem:
         # Scaled by the full sensitivities, the reduced matrix is
         # dimensionless; its eigenvalues say how much of each signature
         # survives the elimination of the rotations
-        s_scaled = s_pattern.sum(axis=0) / np.outer(full, full)
+        s_scaled = (s_pattern.sum(axis=0) + np.diag(precision)) / np.outer(full, full)
         mu, v = np.linalg.eigh((s_scaled + s_scaled.T) / 2)
         return cls(
             jg=jg,
@@ -501,6 +519,7 @@ class JointSystem:
             c=c,
             a0=a0,
             s_pattern=s_pattern,
+            geometry_precision=precision,
             full=full,
             mu=mu,
             v=v,
@@ -510,16 +529,21 @@ class JointSystem:
         )
 
     def solve(
-        self, residual: np.ndarray, offsets: np.ndarray | None = None, damping: float = 0.0
+        self,
+        residual: np.ndarray,
+        offsets: np.ndarray | None = None,
+        damping: float = 0.0,
+        geometry_offsets: np.ndarray | None = None,
     ) -> JointUpdate:
         """Solve the system for one residual.
 
         Parameters
         ----------
-        residual, offsets, damping
+        residual, offsets, damping, geometry_offsets
             As in :func:`solve_joint`: the measured residual (N, M), each
-            orientation's rotation from its start (N, 3; default zero)
-            and the Levenberg-Marquardt damping.
+            orientation's rotation from its start (N, 3; default zero),
+            the Levenberg-Marquardt damping and the geometry's values
+            against its prior's centre (K,; default zero).
 
         Returns
         -------
@@ -540,6 +564,10 @@ class JointSystem:
         ag = (self.jgw_t @ b[..., None])[..., 0]
         a_inv_r = np.einsum("nij,nj->ni", self.a_inv, ar)
         g_red = (ag - np.einsum("nki,nk->ni", self.bb, a_inv_r)).sum(axis=0)
+        if geometry_offsets is not None:
+            p0 = np.zeros_like(g_red)
+            p0[: self.k] = geometry_offsets
+            g_red = g_red + self.geometry_precision * p0
         g_scaled = g_red / full
         coef = np.zeros_like(mu)
         coef[keep] = 1.0 / (mu[keep] + damping)

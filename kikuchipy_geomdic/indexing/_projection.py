@@ -46,11 +46,16 @@ class MasterPatternArrays:
     smoothing
         Standard deviation (degrees) of the Gaussian they were smoothed
         with; 0 for the master pattern itself.
+    stretch
+        The crystal's c axis (its z) over the master pattern's: patterns
+        projected from these arrays are those of a lattice stretched along
+        it (1: the master pattern's own).
     """
 
     upper: np.ndarray
     lower: np.ndarray
     smoothing: float = 0.0
+    stretch: float = 1.0
     _smoothed: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
@@ -68,7 +73,7 @@ class MasterPatternArrays:
             up = _smooth_across_equator(self.upper, self.lower, px)
             lo = _smooth_across_equator(self.lower, self.upper, px)
             self._smoothed[sigma] = MasterPatternArrays(
-                up.astype(np.float32), lo.astype(np.float32), sigma
+                up.astype(np.float32), lo.astype(np.float32), sigma, self.stretch
             )
         return self._smoothed[sigma]
 
@@ -309,5 +314,13 @@ def _on_stack(kernel, quaternions, pcs, om, arrays, shape):
     pcs = np.ascontiguousarray(pcs, dtype=np.float64).reshape(-1, 3)
     om = np.ascontiguousarray(om, dtype=np.float64)
     return kernel(
-        q, pcs, int(shape[0]), int(shape[1]), om, arrays.upper, arrays.lower, float(arrays.scale)
+        q,
+        pcs,
+        int(shape[0]),
+        int(shape[1]),
+        om,
+        arrays.upper,
+        arrays.lower,
+        float(arrays.scale),
+        float(arrays.stretch),
     )

@@ -53,7 +53,7 @@ import numpy as np
 from kikuchipy.signals import EBSDMasterPattern
 from orix.crystal_map import Phase
 
-__all__ = ["phase", "master_pattern"]
+__all__ = ["phase", "master_pattern", "stretched"]
 
 _DATA = resources.files("kikuchipy_geomdic") / "data"
 #: File and simulator of each shipped dynamical master pattern by kind:
@@ -259,3 +259,74 @@ def _kinematical(p: Phase, energy, half_size, min_dspacing) -> EBSDMasterPattern
     mp.data = mp.data.astype(np.float32)
     mp.metadata.General.title = f"{p.name} kinematical"
     return mp
+
+
+def stretched(
+    master_pattern: EBSDMasterPattern, stretch: float, energy: float = 20
+) -> EBSDMasterPattern:
+    """Return the master pattern of the crystal of *master_pattern* with
+    its c axis (crystal z) *stretch* times as long: c/a changed, as in a
+    crystal that is not its CIF's.
+
+    Every Lambert pixel takes the intensity the master pattern holds at
+    its direction ``u`` mapped by the stretch's inverse,
+    ``diag(1, 1, 1 / stretch) u`` normalised (the projection's bilinear
+    lookup): the bands and zone axes move as the lattice's directions do;
+    their widths, which change with the d-spacings by as little, do not.
+    Data from another lattice than the CIF's for the benchmarks, from any
+    simulator's master pattern.
+
+    Parameters
+    ----------
+    master_pattern
+        Lambert master pattern, both hemispheres.
+    stretch
+        The c axis' length over the master pattern's (> 0).
+    energy
+        Beam energy in kV (the slice of a multi-energy master pattern).
+
+    Returns
+    -------
+    master_pattern
+        A new :class:`~kikuchipy.signals.EBSDMasterPattern` (float32), its
+        phase's lattice stretched alike.
+
+    Examples
+    --------
+    >>> mp = master_pattern("BaTiO3", kind="ebsdsim")
+    >>> flat = stretched(mp, 0.994)
+    >>> flat.data.shape == mp.data.shape, round(flat.phase.structure.lattice.c, 4)
+    (True, 4.0123)
+    """
+    from kikuchipy.signals.util._master_pattern import _lambert2vector
+
+    from kikuchipy_geomdic.indexing._lambert import _project
+    from kikuchipy_geomdic.indexing.orientation import master_pattern_arrays
+
+    if not stretch > 0:
+        raise ValueError(f"stretch must be positive, not {stretch!r}")
+    arrays = master_pattern_arrays(master_pattern, energy)
+    n = arrays.upper.shape[-1]
+    grid = np.linspace(-1, 1, n)
+    x, y = np.meshgrid(grid, grid)
+    v = _lambert2vector(x.ravel(), y.ravel())
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    out = np.empty((2, n * n), dtype=np.float32)
+    jac = np.empty((1, 3))
+    identity = np.array([1.0, 0.0, 0.0, 0.0])
+    for h, sign in enumerate((1.0, -1.0)):
+        d = v * [1.0, 1.0, sign / stretch]
+        d = np.ascontiguousarray(d / np.linalg.norm(d, axis=1, keepdims=True))
+        value = np.empty(n * n)
+        _project(identity, d, arrays.upper, arrays.lower, arrays.scale, value, jac, False)
+        out[h] = value
+    new = EBSDMasterPattern(
+        out.reshape(2, n, n),
+        projection="lambert",
+        hemisphere="both",
+        phase=master_pattern.phase.deepcopy(),
+    )
+    lat = new.phase.structure.lattice
+    lat.setLatPar(c=lat.c * stretch)
+    new.metadata.General.title = f"{master_pattern.metadata.General.title}, c axis x {stretch:g}"
+    return new

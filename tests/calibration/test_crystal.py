@@ -493,3 +493,31 @@ def test_variants_chosen_once_per_geometry(monkeypatch):
     pg = sm.xmap.phases[0].point_group
     off = _angle_to(res.xmap.rotations.flatten(), sm.xmap.rotations.flatten(), pg)
     assert off.max() < 2.0  # every point in its variant
+
+
+def test_domain_map_of_another_lattice_fits_its_c_over_a():
+    """A BaTiO3 domain map (the envelope's base cell, users' starts) whose
+    crystal has a c axis 0.6 % longer than the CIF's: held at the CIF's
+    lattice the PC is biased; fitted with it (the default tolerance), the
+    PC is within 3e-4 and honest, and c/a within 3 standard errors of the
+    data's. The calibration's own simulator's data: the lattice alone."""
+    from kikuchipy_geomdic.calibration.refinement import LATTICE_TOLERANCE
+    from kikuchipy_geomdic.validation import master_patterns
+
+    mp = master_patterns.master_pattern("BaTiO3", kind="dynamical")
+    sm = _domain_map(
+        (0.50, 0.20, 0.70), 0, synthetic.DEFAULT_PERTURBATION,
+        master_pattern=mp, simulator=master_patterns.stretched(mp, 1.006),
+    )  # fmt: skip
+    held, err_held = _pc_errors(sm, lattice_tolerance=0)
+    assert held.lattice == {}
+    assert max(map(abs, err_held.values())) > 1e-3, err_held
+    res, err = _pc_errors(sm)
+    assert max(map(abs, err.values())) < 3e-4, err
+    for n, e in err.items():
+        assert abs(e) <= 3 * res.standard_errors[n], (n, e)
+    lat = res.lattice
+    assert lat["determined"] and lat["tolerance"] == LATTICE_TOLERANCE
+    assert abs(lat["stretch"] - 0.006) <= 3 * lat["stretch_se"], lat
+    assert lat["c_over_a"] == pytest.approx(4.0365 * 1.006 / 3.9925, abs=3 * lat["c_over_a_se"])
+    assert "c/a" in repr(res)

@@ -101,3 +101,32 @@ def test_pattern_jacobian_averages_to_analytic(jacobians, si_mp):
     ja = analytic_jacobian(geo, pts, pos, counts, DEFAULT_PARAMETERS, DEFAULT_STEPS)
     manual = (jg * (counts > 0)[..., None, None]).sum(axis=0).reshape(32, 6) / 9
     np.testing.assert_allclose(ja, manual)
+
+
+def test_lattice_derivative_against_a_stretched_master_pattern(bto_mp):
+    """The derivative by the c axis' stretch is the finite difference of
+    patterns projected from the master pattern of a stretched crystal."""
+    from dataclasses import replace
+
+    from kikuchipy.detectors import EBSDDetector
+    from orix.quaternion import Rotation
+
+    from kikuchipy_geomdic.calibration.jacobian import _directions, lattice_derivative
+    from kikuchipy_geomdic.indexing import orientation as ori
+
+    q = Rotation.from_euler(np.deg2rad([[10, 35, 60], [100, 20, 5]])).data
+    pc = np.array([[0.5, 0.3, 0.6]] * 2)
+    om = ori.detector_matrix(EBSDDetector(sample_tilt=70))
+    arrays = ori.master_pattern_arrays(bto_mp, 20)
+    shape = (60, 60)
+    _, j_rot, _ = ori.project_derivatives(q, pc, om, arrays, shape)
+    analytic = lattice_derivative(j_rot, _directions(pc, shape, om), q)
+    h = 1e-4
+    plus, minus = (
+        ori.project_arrays(q, pc, om, replace(arrays, stretch=1 + s * h), shape).reshape(2, -1)
+        for s in (1, -1)
+    )
+    numeric = (plus - minus) / (2 * h)
+    for a, n in zip(analytic, numeric):
+        assert np.corrcoef(a, n)[0, 1] > 0.99
+        assert (a @ n) / (a @ a) == pytest.approx(1, abs=0.03)

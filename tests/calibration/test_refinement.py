@@ -763,6 +763,11 @@ class TestBadInput:
         with pytest.raises(ValueError, match="jacobian"):
             self._call(sm, jacobian="secant")
 
+    @pytest.mark.parametrize("tolerance", [-0.01, float("nan"), [0.01]])
+    def test_lattice_tolerance(self, sm, tolerance):
+        with pytest.raises(ValueError, match="lattice_tolerance"):
+            self._call(sm, lattice_tolerance=tolerance)
+
 
 @pytest.mark.parametrize(
     "kind",

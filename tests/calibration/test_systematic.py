@@ -1,15 +1,15 @@
 """The systematic part of the standard errors: the spread of the
-geometry's solutions on the detector's regions (one crystal) and on
-groups of grains (a polycrystal), against a known shared misfit."""
+geometry's solutions on the detector's regions (one crystal) and over
+the grains left out in turn (a polycrystal), against a known shared
+misfit."""
 
 import numpy as np
 from orix.quaternion import Rotation
 from orix.quaternion.symmetry import Oh
 
 from kikuchipy_geomdic.calibration._systematic import (
-    GRAIN_GROUPS,
     _grain_errors,
-    _grain_groups,
+    _grains,
     _quadrants,
     _region_errors,
 )
@@ -49,40 +49,67 @@ def _grain_map(rng, sizes, bias_sd, k=2, m=40):
     return jg, jr, b, groups
 
 
+def _z_and_inflation(rng, sizes, bias_sd, maps=60):
+    """|error| / standard error (maps, K) with the grains' part, and the
+    standard errors over the solve's own."""
+    z, inflation, z_stat = [], [], []
+    for _ in range(maps):
+        jg, jr, b, groups = _grain_map(rng, sizes, bias_sd)
+        system = JointSystem.build(jg, jr, np.ones(b.shape))
+        upd = system.solve(b)
+        sys, _ = _grain_errors(system, b, np.zeros((len(b), 3)), groups)
+        # The truth is zero: the error is the update itself
+        stat = upd.standard_errors
+        total = np.sqrt(stat**2 + sys**2)
+        z.append(np.abs(upd.delta) / total)
+        z_stat.append(np.abs(upd.delta) / stat)
+        inflation.append(total / stat)
+    return np.array(z), np.array(inflation), np.array(z_stat)
+
+
 def test_grain_errors_cover_a_bias_each_grain_shares():
     """Six grains whose patterns share a bias each: the cluster-robust
     standard errors (patterns independent) miss the whole map's error,
     with the grains' spread added it is covered; without a bias the
     spread adds little."""
     rng = np.random.default_rng(0)
-    z_stat, z_total, inflation = [], [], []
-    for bias_sd in (0.0, 0.01):
-        for _ in range(60):
-            jg, jr, b, groups = _grain_map(rng, [15, 12, 10, 8, 6, 3], bias_sd)
-            system = JointSystem.build(jg, jr, np.ones(b.shape))
-            upd = system.solve(b)
-            sys = _grain_errors(system, b, np.zeros((len(b), 3)), groups)
-            # The truth is zero: the error is the update itself
-            stat = upd.standard_errors
-            total = np.sqrt(stat**2 + sys**2)
-            if bias_sd:
-                z_stat.append(np.abs(upd.delta) / stat)
-                z_total.append(np.abs(upd.delta) / total)
-            else:
-                inflation.append(total / stat)
-    assert np.mean(np.array(z_stat) > 3) > 0.3
-    assert np.mean(np.array(z_total) > 3) < 0.04
-    assert np.median(inflation) < 1.1
+    z, _, z_stat = _z_and_inflation(rng, [15, 12, 10, 8, 6, 3], 0.01)
+    assert np.mean(z_stat > 3) > 0.3
+    assert np.mean(z > 3) < 0.05
+    _, inflation, _ = _z_and_inflation(rng, [15, 12, 10, 8, 6, 3], 0.0)
+    assert np.median(inflation) < 1.3
 
 
-def test_grain_errors_need_two_determined_groups():
+def test_grain_errors_are_the_errors_size_on_many_grains():
+    """Thirty grains sharing a bias each: the RMS of error / standard
+    error is about 1 (not wider than it must be), and the standard errors
+    shrink with the grains' number as the error does."""
+    rng = np.random.default_rng(4)
+    z, inflation, _ = _z_and_inflation(rng, [4] * 30, 0.01, maps=80)
+    assert 0.8 < np.sqrt(np.mean(z**2)) < 1.25
+    assert np.mean(z <= 1) > 0.55
+    assert np.median(inflation) > 2  # the grains' biases dominate the noise
+    z_many, _, _ = _z_and_inflation(rng, [4] * 120, 0.01, maps=40)
+    assert 0.8 < np.sqrt(np.mean(z_many**2)) < 1.25
+
+
+def test_effective_grains_count_unequal_grains_as_fewer():
+    rng = np.random.default_rng(5)
+    for sizes, low, high in (([10] * 6, 5, 7), ([40, 2, 2, 2, 2, 2], 1, 2.5)):
+        jg, jr, b, groups = _grain_map(rng, sizes, 0.0)
+        system = JointSystem.build(jg, jr, np.ones(b.shape))
+        _, effective = _grain_errors(system, b, np.zeros((len(b), 3)), groups)
+        assert low < effective < high, (sizes, effective)
+
+
+def test_grain_errors_need_three_grains():
     rng = np.random.default_rng(1)
-    jg, jr, b, groups = _grain_map(rng, [20], 0.01)
+    jg, jr, b, groups = _grain_map(rng, [10, 10], 0.01)
     system = JointSystem.build(jg, jr, np.ones(b.shape))
-    assert np.all(_grain_errors(system, b, np.zeros((20, 3)), groups) == 0)
+    assert np.all(_grain_errors(system, b, np.zeros((20, 3)), groups)[0] == 0)
 
 
-def test_grain_groups_of_grains_in_any_symmetry_equivalent():
+def test_grains_of_grains_in_any_symmetry_equivalent():
     rng = np.random.default_rng(3)
     s = _proper_rotations(Oh)
     parents = Rotation(rng.normal(size=(12, 4))).unit
@@ -90,10 +117,7 @@ def test_grain_groups_of_grains_in_any_symmetry_equivalent():
     grain = np.repeat(np.arange(12), 10)
     # Each point in a random one of its symmetry-equivalent forms
     q = Rotation(s[rng.integers(len(s), size=120)]) * scatter * parents[grain]
-    groups = _grain_groups(np.asarray(q.data), s)
-    # No grain split, 12 grains pooled into GRAIN_GROUPS of 10 or 20
-    assert all(len(np.unique(groups[grain == g])) == 1 for g in range(12))
-    assert groups.max() + 1 == GRAIN_GROUPS
-    assert set(np.bincount(groups)) <= {10, 20}
-    three = _grain_groups(np.asarray(q.data)[grain < 3], s)
-    assert np.array_equal(np.unique(three), [0, 1, 2])
+    labels = _grains(np.asarray(q.data), s)
+    # No grain split, none merged
+    assert all(len(np.unique(labels[grain == g])) == 1 for g in range(12))
+    assert len(np.unique(labels)) == 12

@@ -80,3 +80,34 @@ class TestMasterPattern:
         a = master_patterns.master_pattern("Si")
         a.data[:] = 0
         assert master_patterns.master_pattern("Si").data.max() > 0
+
+
+def test_stretched_master_pattern_moves_the_bands_with_the_c_axis():
+    from kikuchipy_geomdic.indexing import orientation as ori
+
+    mp = master_patterns.master_pattern("BaTiO3", kind="ebsdsim")
+    same = master_patterns.stretched(mp, 1.0)
+    assert np.corrcoef(same.data.ravel(), mp.data.ravel())[0, 1] > 0.9999
+    flat = master_patterns.stretched(mp, 0.99)
+    assert flat.phase.structure.lattice.c == pytest.approx(0.99 * mp.phase.structure.lattice.c)
+    assert mp.phase.structure.lattice.c == pytest.approx(4.0365)  # not mutated
+    # Patterns of the stretched crystal are those projected at the stretch
+    from kikuchipy.detectors import EBSDDetector
+    from orix.quaternion import Rotation
+
+    q = Rotation.from_euler(np.deg2rad([[10, 35, 60]])).data
+    pc, om = np.array([[0.5, 0.3, 0.6]]), ori.detector_matrix(EBSDDetector(sample_tilt=70))
+    arrays = ori.master_pattern_arrays(mp, 20)
+    at = ori.project_arrays(
+        q, pc, om, ori.MasterPatternArrays(arrays.upper, arrays.lower, stretch=0.99), (60, 60)
+    )
+    of = ori.project_arrays(q, pc, om, ori.master_pattern_arrays(flat, 20), (60, 60))
+    cif = ori.project_arrays(q, pc, om, arrays, (60, 60))
+    # (resampled twice, the bands a little smoothed: 0.97)
+    assert np.corrcoef(at.ravel(), of.ravel())[0, 1] > 0.95
+    assert (
+        np.corrcoef(cif.ravel(), of.ravel())[0, 1]
+        < np.corrcoef(at.ravel(), of.ravel())[0, 1] - 0.03
+    )
+    with pytest.raises(ValueError, match="stretch"):
+        master_patterns.stretched(mp, 0)

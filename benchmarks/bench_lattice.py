@@ -1,0 +1,98 @@
+"""Benchmark: a crystal whose lattice is not its CIF's. BaTiO3 domain maps
+of the envelope (``bench_envelope.py``'s ``domains`` kind: ebsdsim data,
+de-ebsd's master pattern calibrated with, users' starts) whose data come
+from a crystal with the c axis ``--stretches`` times the CIF's
+(:func:`~kikuchipy_geomdic.validation.master_patterns.stretched`; 0.989 is
+about a cubic CIF's c/a against BaTiO3's 1.011), each calibrated with the
+lattice held at the CIF's (``lattice_tolerance=0``) and fitted (the
+default tolerance).
+
+Printed per map and tolerance: the PC errors, their standard errors, the
+largest |error| / standard error, the fitted c/a stretch with its standard
+error against the data's, how many of the calibration points have the
+right c axis (a 90 deg variant wrong is a point wrongly indexed), time.
+
+Usage::
+
+    python benchmarks/bench_lattice.py --stretches 0.994 1.0 1.006 --seeds 0 1 2
+    python benchmarks/bench_lattice.py --cells base fov-2000 --stretches 0.996 --seeds 0
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import subprocess
+import sys
+import time
+import warnings
+
+import numpy as np
+from bench_envelope import CELLS, PARAMETERS, envelope_map  # run from benchmarks/
+
+from kikuchipy_geomdic import refine_geometry_dic
+from kikuchipy_geomdic.calibration.refinement import LATTICE_TOLERANCE
+from kikuchipy_geomdic.indexing.variants import domain_labels, variant_operators
+
+PC = ("pcx", "pcy", "pcz")
+
+
+def run(cell: str, seed: int, stretch: float, tolerance: float) -> str:
+    sm = envelope_map("domains", cell, seed, stretch=stretch)
+    t0 = time.perf_counter()
+    with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = refine_geometry_dic(
+            sm.signal, sm.start_xmap, sm.start_detector, sm.master_pattern, sm.energy,
+            parameters=PARAMETERS, pseudo_symmetry_ops=variant_operators()[1:],
+            lattice_tolerance=tolerance, show_progressbar=False,
+        )  # fmt: skip
+    seconds = time.perf_counter() - t0
+    truth = sm.geometry.as_dict()
+    err = {k: res.parameters[k] - truth[k] for k in PC}
+    se = res.standard_errors
+    z = max(abs(err[k]) / se[k] for k in PC)
+    labels = domain_labels(sm.xmap)
+    pts = np.asarray(res.points)
+    true_label = labels.label.reshape(sm.xmap.shape)[pts[:, 0], pts[:, 1]]
+    got = domain_labels(res.xmap, parent=labels.parent).label
+    c_right = float(np.mean(got // 2 == true_label // 2))
+    lat = res.lattice
+    fit = (
+        f"{lat['stretch']:+.2%} +- {lat['stretch_se']:.2%} "
+        f"(z {(lat['stretch'] - (stretch - 1)) / lat['stretch_se']:+5.1f}"
+        f"{'' if lat['determined'] else ', not determined'})"
+        if lat
+        else "held"
+    )
+    return (
+        f"{cell:<9} {seed:2d} data {stretch - 1:+.1%} tol {tolerance:<5g} | PC err "
+        + " ".join(f"{err[k]:+.1e}" for k in PC)
+        + " | se "
+        + " ".join(f"{se[k]:.1e}" for k in PC)
+        + f" | max z {z:4.1f} | c/a stretch {fit:<34s} | c axis right {c_right:4.0%} "
+        f"| {seconds:3.0f} s"
+    )
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--cells", nargs="+", default=["base"], choices=list(CELLS))
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    ap.add_argument("--stretches", type=float, nargs="+", default=[0.994, 1.0, 1.006])
+    ap.add_argument("--tolerances", type=float, nargs="+", default=[0.0, LATTICE_TOLERANCE])
+    args = ap.parse_args(argv)
+    version = subprocess.run(
+        ["git", "describe", "--always", "--dirty"], capture_output=True, text=True
+    ).stdout.strip()
+    print(f"command: {' '.join(sys.argv)}  (code {version})", flush=True)
+    for cell in args.cells:
+        for stretch in args.stretches:
+            for seed in args.seeds:
+                for tol in args.tolerances:
+                    print(run(cell, seed, stretch, tol), flush=True)
+
+
+if __name__ == "__main__":
+    main()
