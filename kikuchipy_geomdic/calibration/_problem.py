@@ -94,9 +94,14 @@ class _Problem:
     def lattice_prior(self) -> float | None:
         """The prior's standard deviation of the c axis' stretch that the
         full field fits, or None where it is not fitted: held (a
-        :attr:`lattice_tolerance` of 0) or a lattice without one unique
-        axis (cubic: no stretch that keeps its symmetry moves a band)."""
-        if not self.lattice_tolerance > 0:
+        :attr:`lattice_tolerance` of 0), a lattice without one unique axis
+        (cubic: no stretch that keeps its symmetry moves a band) or a
+        polycrystal. There each pattern's own rotation absorbs most of a
+        lattice error: a c/a 0.6 % off moved BaTiO3 polycrystals' PC by
+        1.2e-4 at most (1.6 standard errors), and the fitted stretch was
+        biased by 40 % at 0.01 % standard errors (the simulators'
+        difference, which every grain shares)."""
+        if not self.lattice_tolerance > 0 or self.crystal is None:
             return None
         if self.phase.point_group.system not in UNIQUE_AXIS_SYSTEMS:
             return None

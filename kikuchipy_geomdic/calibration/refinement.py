@@ -301,15 +301,16 @@ def refine_geometry_dic(
     lattice_tolerance
         How far, as a fraction, the crystal's c/a may be from that of the
         master pattern's phase (its CIF): a prior's standard deviation.
-        For a crystal with one unique axis (tetragonal, hexagonal,
-        trigonal) the full field fits the c axis' stretch with the
-        geometry, since a c/a the CIF does not have moves every band and
-        reads as a PC error (0.6 % of c/a: 3e-3 of PC). Where the map
-        separates the two, the fit is the data's; where it cannot, the PC's
-        standard errors carry this tolerance. Reported in
-        :attr:`GeometryRefinementResult.lattice`. 0 holds the lattice at
-        the CIF's; cubic crystals have no such freedom. Default
-        :data:`LATTICE_TOLERANCE`.
+        On one crystal (the crystal orientation model) with one unique
+        axis (tetragonal, hexagonal, trigonal) the full field fits the c
+        axis' stretch with the geometry, since a c/a the CIF does not have
+        moves every band of every pattern alike and reads as a PC error
+        (0.6 % of c/a: 2-3e-3 of PC). Where the map separates the two, the
+        fit is the data's; where it cannot, the PC's standard errors carry
+        this tolerance. Reported in :attr:`GeometryRefinementResult.lattice`.
+        0 holds the lattice at the CIF's; cubic crystals have no such
+        freedom, and on a polycrystal each pattern's rotation absorbs most
+        of it (the lattice is held there). Default :data:`LATTICE_TOLERANCE`.
     show_progressbar
         Whether to show a progress bar over the iterations (tqdm, on
         stderr) and print a header and one line per trial step (stdout).

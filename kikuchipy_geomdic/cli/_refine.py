@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Sequence
 
+from kikuchipy_geomdic.calibration.refinement import LATTICE_TOLERANCE
 from kikuchipy_geomdic.cli._load import (
     _check_detector,
     _check_pseudo_symmetry,
@@ -18,7 +19,7 @@ from kikuchipy_geomdic.cli._load import (
     start_detector,
 )
 from kikuchipy_geomdic.cli._output import _inputs, _Staging
-from kikuchipy_geomdic.cli._parser import _command_output, _positive_int
+from kikuchipy_geomdic.cli._parser import _command_output, _fraction, _positive_int
 from kikuchipy_geomdic.cli._run import CLIError, _run_on_map, _warn
 
 #: Files ``refine`` writes, in the order they are moved into place (the
@@ -136,6 +137,7 @@ def _refine(args: argparse.Namespace) -> int:
         points=pts,
         solver=args.solver,
         full_field=False if args.dic_only else None,
+        lattice_tolerance=args.lattice_tolerance,
         orientation_prior=args.orientation_prior,
         orientation_model=args.orientation_model,
         rois=tuple(args.rois),
@@ -230,6 +232,15 @@ def _refine_parser(sub, common: argparse.ArgumentParser) -> None:
         help="skip the full-field stage (Gauss-Newton on the intensities) after the DIC "
         "stage: for a master pattern from another simulator than the one that "
         "describes the patterns, whose intensities differ more than its band positions",
+    )
+    refine.add_argument(
+        "--lattice-tolerance",
+        type=_fraction,
+        default=LATTICE_TOLERANCE,
+        metavar="F",
+        help="how far c/a may be from the CIF's, as a fraction: a tetragonal, hexagonal "
+        f"or trigonal crystal's c/a is fitted with the geometry (default {LATTICE_TOLERANCE:g}; "
+        "0 holds the CIF's)",
     )
     refine.add_argument(
         "--orientation-prior",

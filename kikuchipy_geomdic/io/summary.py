@@ -115,10 +115,10 @@ def summary_from_result(result, **inputs) -> dict[str, Any]:
         where the map does not determine it: kept at its start, or only
         a difference determined), ``undetermined`` (above
         ``DETERMINACY_LIMITS``), ``adequacy`` (the check of the full field
-        against the DIC stage: ``verdict``, ``consistent`` and the
-        ``systematic`` part of each standard error; empty without a full
-        field), ``calibration`` (points, NCC, displacement), ``history``
-        and ``inputs``.
+        against the DIC stage: ``verdict``, ``consistent``, the
+        ``systematic`` part of each standard error and the ``lattice``
+        fitted, if it was; empty without a full field), ``calibration``
+        (points, NCC, displacement), ``history`` and ``inputs``.
 
     Examples
     --------
@@ -153,7 +153,7 @@ def summary_from_result(result, **inputs) -> dict[str, Any]:
         "undetermined": list(result.undetermined),
         "adequacy": {
             k: result.adequacy[k]
-            for k in ("verdict", "consistent", "systematic")
+            for k in ("verdict", "consistent", "systematic", "lattice")
             if k in result.adequacy
         },
         "calibration": {
@@ -323,6 +323,13 @@ def format_summary(summary: Mapping[str, Any]) -> str:
         lines.append(
             "sigma includes a systematic part (what the patterns share): "
             + ", ".join(f"{k} {v:.1e}" for k, v in parts.items())
+        )
+    lattice = adequacy.get("lattice")
+    if lattice:
+        lines.append(
+            f"c/a {lattice['c_over_a']:.5f} +- {lattice['c_over_a_se']:.5f} (the CIF's "
+            f"{lattice['phase_c_over_a']:.5f})"
+            + ("" if lattice["determined"] else ": not determined, the PC's sigma carries it")
         )
     ref = ", ".join(f"{v:g}" for v in g["reference"])
     lines.append("")

@@ -453,6 +453,25 @@ def test_dic_only_skips_the_full_field(tmp_path, data, capsys, monkeypatch):
     assert dic_only is False and "full-field" not in stages_dic
 
 
+def test_lattice_tolerance_reaches_the_calibration(tmp_path, data, capsys, monkeypatch):
+    d, _ = data
+    seen = []
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs["lattice_tolerance"])
+        raise ValueError("stop here")
+
+    from kikuchipy_geomdic.calibration import refinement
+
+    monkeypatch.setattr(refinement, "refine_geometry_dic", spy)
+    argv = ["refine", d / "map.h5", "--master-pattern", "Si", "--energy", "20", *FAST]
+    run([*argv, "--lattice-tolerance", "0.004", "--out", tmp_path / "a"], capsys)
+    assert seen == [0.004]
+    with pytest.raises(SystemExit):
+        run([*argv, "--lattice-tolerance", "-1", "--out", tmp_path / "b"], capsys)
+    assert "not a fraction >= 0" in capsys.readouterr().err
+
+
 def test_unusable_points_excluded_from_calibration(tmp_path, data, capsys):
     """NaN patterns, non-indexed points, zero and NaN rotations are not
     used; the user is told fewer points than requested are usable."""
