@@ -37,7 +37,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import bench_draws  # noqa: E402
 
-from kikuchipy_geomdic.calibration import _full_field, _processing  # noqa: E402
+from kikuchipy_geomdic.calibration import _full_field, _intensity, _processing  # noqa: E402
 
 
 def _true_processing(problem, arrays, geometry, rotations):
@@ -85,7 +85,7 @@ def _exact_weights():
     def system(problem, arrays, geometry, rotations, solved, processing, jacobians=True):
         n = len(problem.points)
         e = problem.experimental.reshape(n, -1).astype(np.float64)
-        s0, geo, six = _full_field._model(
+        s0, geo, six = _intensity._model(
             problem, arrays, geometry, rotations, solved, processing, jacobians
         )
         basis = np.stack([np.ones_like(s0), s0], axis=2)

@@ -94,7 +94,7 @@ _DYNAMIC_ONLY = (
 
 
 def _check_options(
-    parameters, solver, jacobian, orientation_prior, orientation_model="auto"
+    parameters, solver, jacobian, orientation_prior, orientation_model="auto", lattice_tolerance=0
 ) -> tuple[str, ...]:
     """Check the options that need no data; return the parameters to
     refine in canonical order."""
@@ -118,6 +118,11 @@ def _check_options(
         raise ValueError(
             f"orientation_prior must be a positive RMS angle in degrees or None, "
             f"not {orientation_prior}"
+        )
+    if not (np.isscalar(lattice_tolerance) and lattice_tolerance >= 0):
+        raise ValueError(
+            f"lattice_tolerance must be a fraction >= 0 (0 holds the CIF's lattice), "
+            f"not {lattice_tolerance!r}"
         )
     return names
 
@@ -357,12 +362,9 @@ def refine_geometry_dic(
     True
     """
     show = _show_progressbar(show_progressbar)
-    names = _check_options(parameters, solver, jacobian, orientation_prior, orientation_model)
-    if not (np.isscalar(lattice_tolerance) and lattice_tolerance >= 0):
-        raise ValueError(
-            f"lattice_tolerance must be a fraction >= 0 (0 holds the CIF's lattice), "
-            f"not {lattice_tolerance!r}"
-        )
+    names = _check_options(
+        parameters, solver, jacobian, orientation_prior, orientation_model, lattice_tolerance
+    )
     nav = navigation_shape(signal)
     phase_id = _check_inputs(signal, xmap, detector, master_pattern, phase, nav)
     # Left at its default, the full field runs only where the DIC stage
@@ -376,21 +378,10 @@ def refine_geometry_dic(
         dic_kw["binning"] = 1 if not full_field else _binning(signal.axes_manager.signal_shape)
     geometry0 = MapGeometry.from_detector(detector, _step_sizes(signal), nav)
     problem = _prepare_problem(
-        signal,
-        xmap,
-        master_pattern,
-        energy,
-        names,
-        points,
-        phase_id,
-        nav,
-        steps,
-        dic_kw,
-        refine_kwargs,
-        pseudo_symmetry_ops,
-        orientation_model if solver == "joint" else None,
+        signal, xmap, master_pattern, energy, names, points, phase_id, nav, steps, dic_kw,
+        refine_kwargs, pseudo_symmetry_ops, orientation_model if solver == "joint" else None,
         geometry0,
-    )
+    )  # fmt: skip
     problem = replace(problem, lattice_tolerance=float(lattice_tolerance))
     if problem.crystal is not None and orientation_prior is None:
         orientation_prior = CRYSTAL_SCATTER

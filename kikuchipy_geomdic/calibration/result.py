@@ -178,8 +178,8 @@ class GeometryRefinementResult:
         ``"tolerance"``, and whether the map ``"determined"`` it (its
         standard error below half the tolerance; if not, the PC's
         standard errors carry the tolerance). Empty where it was not
-        fitted: a cubic crystal, a polycrystal, ``lattice_tolerance=0`` or
-        no full field.
+        fitted: a cubic crystal, a polycrystal, patterns with the map's mean
+        divided out, ``lattice_tolerance=0`` or no full field.
         """
         return dict(self.adequacy.get("lattice", {}))
 

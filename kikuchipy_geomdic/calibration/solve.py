@@ -17,19 +17,15 @@ Two solvers, plain arrays in and out:
 
 Exact degeneracies
 ------------------
-Some parameter combinations do not change the patterns at all (in
-kikuchipy's projection, ``tilt`` and ``sample_tilt`` enter only as their
-difference: see :mod:`kikuchipy_geomdic.geometry`). Their Jacobian columns
-are then exactly dependent, the normalised Jacobian has a zero singular
-value, and Eq. 10 is singular but for the damping. Rather than let the
-damping split the change by accident, the solve is done through the
-singular value decomposition: directions with a singular value below
-``rtol`` times the largest are dropped, which gives the *minimum-norm*
-update in the column-normalised parameters. For tilt and sample_tilt,
-whose columns have equal norms, that is an equal and opposite split of
-the change of ``tilt - sample_tilt``. To keep one of the pair fixed
-instead, leave it out of the refined parameters. Dropped directions are
-reported (:attr:`Update.null_space`).
+Some parameter combinations do not change the patterns (``tilt`` and
+``sample_tilt`` enter kikuchipy's projection only as their difference):
+their columns are dependent and Eq. 10 singular but for the damping.
+The solve goes through the singular value decomposition instead, dropping
+directions below ``rtol`` times the largest singular value: the
+*minimum-norm* update in the column-normalised parameters, for the two
+tilts an equal and opposite split of their difference (leave one out of
+the refined parameters to keep it fixed). Dropped directions are reported
+(:attr:`Update.null_space`).
 
 Layer 6 (calibration): plain arrays in and out; imports nothing of the
 package.
@@ -371,12 +367,10 @@ def solve_joint(
         unknowns; the *prior* (required) holds each pattern's scatter
         :math:`\omega_i + \delta\omega_i` about it (one crystal).
         :math:`\Omega` is added to :attr:`JointUpdate.rotations`.
-    geometry_prior
-        Standard deviations (K,) of a Gaussian prior, about zero, on the
-        geometry parameters' values (``inf`` where none): adds
-        :math:`\sum_k (p_k + \Delta p_k)^2 / \sigma_k^2`, with
-        :math:`p_k` the *geometry_offsets* (K,; default zero), the
-        parameters' current values against the prior's centre.
+    geometry_prior, geometry_offsets
+        Standard deviations (K,) of a prior on the geometry (``inf`` where
+        none): adds :math:`\sum_k (p_k + \Delta p_k)^2 / \sigma_k^2`, with
+        :math:`p_k` the parameters' values against its centre (default 0).
 
     Returns
     -------
@@ -470,12 +464,10 @@ class JointSystem:
         if prior is not None and not (np.isfinite(p) and prior > 0):
             raise ValueError(f"prior must be a positive standard deviation, not {prior}")
         k = jg.shape[2]
-        precision = np.zeros(k)
-        if geometry_prior is not None:
-            sd = np.asarray(geometry_prior, dtype=np.float64)
-            if sd.shape != (k,) or not (sd > 0).all():
-                raise ValueError(f"geometry_prior must be {k} positive standard deviations")
-            precision = 1.0 / sd**2
+        sd = np.full(k, np.inf) if geometry_prior is None else np.asarray(geometry_prior, float)
+        if sd.shape != (k,) or not (sd > 0).all():
+            raise ValueError(f"geometry_prior must be {k} positive standard deviations")
+        precision = 1.0 / sd**2
         if common and prior is None:
             raise ValueError("a common rotation needs a prior: else it is every pattern's own")
         if common:  # it moves every pattern as the pattern's own does
@@ -489,9 +481,7 @@ class JointSystem:
         a = a0 + p * np.eye(3)
         bb = jrw_t @ jg
         c = jgw_t @ jg
-        # Patterns without vectors and no prior have a singular 3 x 3
-        # block; the pseudo-inverse gives them no rotation and no say in
-        # the geometry
+        # A pattern without vectors and no prior: singular, no say (pinv)
         a_inv = np.linalg.pinv(a, hermitian=True)
         a_inv_b = a_inv @ bb
         s_pattern = c - np.einsum("nki,nkj->nij", bb, a_inv_b)
@@ -501,32 +491,15 @@ class JointSystem:
                 f"Jacobian column(s) {np.flatnonzero(full == 0).tolist()} are zero after "
                 "weighting: those parameters have no measurable effect"
             )
-        # Scaled by the full sensitivities, the reduced matrix is
-        # dimensionless; its eigenvalues say how much of each signature
-        # survives the elimination of the rotations
+        # Scaled by the full sensitivities, its eigenvalues say how much
+        # of each signature survives the elimination of the rotations
         s_scaled = (s_pattern.sum(axis=0) + np.diag(precision)) / np.outer(full, full)
         mu, v = np.linalg.eigh((s_scaled + s_scaled.T) / 2)
-        return cls(
-            jg=jg,
-            jr=jr,
-            w=w,
-            jgw_t=jgw_t,
-            jrw_t=jrw_t,
-            prior_precision=p,
-            a_inv=a_inv,
-            a_inv_b=a_inv_b,
-            bb=bb,
-            c=c,
-            a0=a0,
-            s_pattern=s_pattern,
-            geometry_precision=precision,
-            full=full,
-            mu=mu,
-            v=v,
-            keep=mu > rtol * max(mu.max(), 1.0),
-            n_rot=int(np.linalg.matrix_rank(a, hermitian=True).sum()),
-            k=k,
-        )
+        keep = mu > rtol * max(mu.max(), 1.0)
+        n_rot = int(np.linalg.matrix_rank(a, hermitian=True).sum())
+        # In the fields' order
+        return cls(jg, jr, w, jgw_t, jrw_t, p, a_inv, a_inv_b, bb, c, a0, s_pattern, precision,
+                   full, mu, v, keep, n_rot, k)  # fmt: skip
 
     def solve(
         self,
@@ -565,9 +538,7 @@ class JointSystem:
         a_inv_r = np.einsum("nij,nj->ni", self.a_inv, ar)
         g_red = (ag - np.einsum("nki,nk->ni", self.bb, a_inv_r)).sum(axis=0)
         if geometry_offsets is not None:
-            p0 = np.zeros_like(g_red)
-            p0[: self.k] = geometry_offsets
-            g_red = g_red + self.geometry_precision * p0
+            g_red[: self.k] += self.geometry_precision[: self.k] * geometry_offsets
         g_scaled = g_red / full
         coef = np.zeros_like(mu)
         coef[keep] = 1.0 / (mu[keep] + damping)

@@ -1,6 +1,6 @@
 import numpy as np
 
-from kikuchipy_geomdic.calibration._full_field import (
+from kikuchipy_geomdic.calibration._intensity import (
     MIN_PIXEL_VARIANCE,
     _pixel_variances,
     _project_out,

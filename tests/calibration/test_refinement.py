@@ -285,19 +285,20 @@ def test_full_field_reaches_the_bound(blurred, blurred_results):
     assert _max_pc_error(ff, sm) < _max_pc_error(dic, sm)
     err, _ = _errors(ff, sm)
     for name in ("pcx", "pcy", "pcz"):
-        # Honest errors, smaller than the DIC stage's
+        # Honest errors, and standard errors tighter than the DIC stage's:
+        # no floor at them on a map of 49 random orientations
         assert abs(err[name]) <= 3 * ff.standard_errors[name], (name, err[name])
-        # Floored at the DIC stage's (binned there, so about the DIC-only run's)
-        assert ff.standard_errors[name] >= 0.8 * dic.standard_errors[name]
+        assert ff.standard_errors[name] < dic.standard_errors[name]
     # The bound of the same patterns, without the blur in the model (so
-    # a little larger): the full field's errors are at it, its standard
-    # errors no tighter than the DIC stage can check
+    # a little larger): the full field's errors are at it, and its
+    # standard errors not much wider than it
     crb = cramer_rao_bound(
         sm.signal, sm.xmap, sm.geometry, sm.master_pattern, 20, points=ff.points,
         parameters=["pcx", "pcy", "pcz"],
     )  # fmt: skip
     for name in ("pcx", "pcy", "pcz"):
         assert abs(err[name]) <= 3 * crb.sigma[name], (name, err[name], crb.sigma[name])
+        assert ff.standard_errors[name] <= 1.7 * crb.sigma[name], name
     stages = [h.get("stage") for h in ff.history]
     assert "full-field" in stages and "full-field" not in [h.get("stage") for h in dic.history]
 

@@ -688,7 +688,10 @@ def test_variant_call_does_not_depend_on_the_start(user_stripes):
     degrees off) and from the true orientations alike. Measured: with 8
     evaluations per rival variant (before) 4 flags differed and the
     significances' 90th percentile difference was 0.50; with 16, none and
-    0.15."""
+    0.15. A flag may differ only at a point whose significance is within
+    that noise of the threshold (2.5) in either run, or beside one (a
+    domain's flag follows its trusted neighbours): measured, one point at
+    2.39 and 2.56, and its neighbour."""
     sm = user_stripes
     kw = dict(pseudo_symmetry_ops=variant_operators()[1:], show_progressbar=False)
     args = (sm.detector, sm.master_pattern, sm.energy)
@@ -696,7 +699,14 @@ def test_variant_call_does_not_depend_on_the_start(user_stripes):
     truth = reindex(sm.signal, sm.xmap, *args, **kw)
     flagged = users.converged == 0
     assert 5 <= flagged.sum() <= 60  # some calls within the noise: the test can fail
-    np.testing.assert_array_equal(flagged, truth.converged == 0)
+    sig = np.stack([users.variant_significance, truth.variant_significance])
+    borderline = (np.abs(sig - 2.5) < 0.25).any(axis=0).reshape(sm.xmap.shape)
+    near = np.zeros_like(borderline)
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            near |= np.roll(np.roll(borderline, dr, axis=0), dc, axis=1)
+    differ = (flagged != (truth.converged == 0)).reshape(sm.xmap.shape)
+    assert differ.sum() <= 3 and not (differ & ~near).any(), np.argwhere(differ)
     diff = np.abs(users.variant_significance - truth.variant_significance)
     assert np.percentile(diff, 90) < 0.25
 

@@ -1,0 +1,191 @@
+"""The full field's linear system at a geometry and orientations
+(:func:`_intensity_system`): the model patterns made as the patterns were
+(:func:`_model`), residuals and Jacobians with each pattern's gain and
+offset projected out (:func:`_project_out`), the pixels' noise variances
+(:func:`_pixel_variances`), and the system as the Gauss-Newton steps keep
+it (:class:`_System`).
+
+Layer 6 (calibration): may import geometry, io, patterns, indexing, plotting
+and calibration.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from typing import Any
+
+import numba as nb
+import numpy as np
+from orix.quaternion import Rotation
+
+from kikuchipy_geomdic.calibration._processing import _compared
+from kikuchipy_geomdic.calibration.jacobian import INTENSITY_STEPS, _intensity_chain
+from kikuchipy_geomdic.calibration.solve import JointSystem
+from kikuchipy_geomdic.geometry import MapGeometry
+from kikuchipy_geomdic.indexing import orientation as ori
+
+#: Smallest pixel noise variance of the full field, as a fraction of its
+#: pattern's mean.
+MIN_PIXEL_VARIANCE = 0.3
+
+
+@nb.njit(cache=True, nogil=True)
+def _project_out(a, unit, scale):
+    """*a* (N, K, P), pattern planes, times each pattern's *scale* (N,),
+    with each pattern's constant and *unit* (N, P) direction removed from
+    every column, returned as (N, P, K) float64 in two passes over the
+    pixels (numpy's broadcasting made five and was the full field's
+    largest cost; the transposition is free in the second)."""
+    n, k, p = a.shape
+    out = np.empty((n, p, k))
+    for i in range(n):
+        for c in range(k):
+            mean = 0.0
+            along = 0.0
+            for j in range(p):
+                v = a[i, c, j]
+                mean += v
+                along += unit[i, j] * v
+            mean /= p
+            # unit sums to zero, so the dot product needs no centring
+            for j in range(p):
+                out[i, j, c] = scale[i] * (a[i, c, j] - mean - unit[i, j] * along)
+    return out
+
+
+def _model(
+    problem, arrays, geometry, rotations, solved, processing, jacobians=True, compare=None,
+    lattice=False,
+):  # fmt: skip
+    """The model patterns (N, P) made by *processing* from the master
+    pattern's *arrays*, and with *jacobians* their processed geometry
+    (N, K, P; with *lattice* the c axis' stretch after them, K + 1) and
+    rotation-and-PC (N, 6, P) derivative planes (else None, None), those
+    passed through the linear filter *compare* if given (the patterns are
+    not)."""
+    n = len(problem.points)
+    if not jacobians:
+        sim = ori.project_patterns(rotations, geometry.detector(problem.points), arrays)
+        return processing(sim.reshape(n, -1))[0], None, None
+    s0, j_rot, j_pc, chain, j_lat = _intensity_chain(
+        geometry, problem.points, rotations, arrays, solved, INTENSITY_STEPS, lattice
+    )
+    # The six columns processed (and filtered), the geometry's made of them
+    # after: both are linear, and six are fewer than K + 3
+    s0, planes = processing(s0, (j_rot, j_pc) if j_lat is None else (j_rot, j_pc, j_lat))
+    if compare is not None:
+        planes = compare(planes)
+    six = planes[:, :6]
+    geo = np.swapaxes(chain, 1, 2).astype(np.float32) @ six
+    if j_lat is not None:
+        geo = np.concatenate([geo, planes[:, 6:]], axis=1)
+    return s0, geo, six
+
+
+def _intensity_system(
+    problem, arrays, geometry, rotations, solved, processing, jacobians=True, lattice=False
+):
+    """Residuals (N, P), geometry and rotation Jacobians with each
+    pattern's gain and offset eliminated (with *lattice*, the c axis'
+    stretch a column after the geometry's), and the pixel noise variances
+    (N, P); the model made by *processing* from the master pattern's
+    *arrays*. Without *jacobians*, only the residuals (the Jacobians
+    None)."""
+    n = len(problem.points)
+    shape = tuple(problem.experimental.shape[1:])
+    raw = problem.experimental.reshape(n, -1).astype(np.float64)
+    # One crystal's patterns compared high-passed: they all share its
+    # simulator's misfit, which a polycrystal's grains average (there the
+    # high-pass cost more than it removed: 8-grain Ni maps of 96 px,
+    # another simulator's data, PC errors 1.2-1.4e-4 -> 1.6-2.8e-4)
+    compare = None if problem.crystal is None else functools.partial(_compared, shape=shape)
+    model, geo, six = _model(
+        problem, arrays, geometry, rotations, solved, processing, jacobians, compare, lattice
+    )
+    e, s0 = (raw, model) if compare is None else (compare(raw), compare(model))
+    # Gain and offset of each pattern, then projected out of every column:
+    # exactly their elimination (variable projection). The two basis
+    # vectors, the constant and the centred model, are orthogonal: the
+    # projection is a centring and one dot product per column
+    sc = s0 - s0.mean(axis=1, keepdims=True)
+    norm = np.linalg.norm(sc, axis=1)
+    unit = sc / norm[:, None]
+    ec = e - e.mean(axis=1, keepdims=True)
+    gain = (unit * ec).sum(axis=1) / norm
+    # Model minus data, fitted gain and offset
+    residual = _project_out(e[:, None], unit, -np.ones(n))[..., 0]
+    jg = jr = None
+    if jacobians:
+        jg = _project_out(geo, unit, gain)
+        jr = _project_out(six[:, :3], unit, gain)
+    # Shot noise follows the intensities before the high-pass: the fitted
+    # model's (the filter is linear, so the gain is the same)
+    fitted = gain[:, None] * (model - model.mean(axis=1, keepdims=True))
+    fitted += raw.mean(axis=1, keepdims=True)
+    return residual, jg, jr, _pixel_variances(residual, fitted)
+
+
+def _pixel_variances(residual: np.ndarray, model: np.ndarray) -> np.ndarray:
+    """Noise variances (N, P) of the pixels, ``c0 + c1 * model`` fitted
+    per pattern to the squared residuals: shot noise grows with the
+    intensity, so bright bands are noisier than the background between
+    them (measured at real-Ni noise: with one variance per pattern the
+    errors were 1.3-1.6x the white-noise bound). Each pixel weighs at
+    most 1 / :data:`MIN_PIXEL_VARIANCE` times its pattern's mean: at 0.1 one
+    pattern's pcz score inflated the cluster-robust error twofold."""
+    return _variances(
+        np.ascontiguousarray(residual, dtype=np.float64),
+        np.ascontiguousarray(model, dtype=np.float64),
+        MIN_PIXEL_VARIANCE,
+    )
+
+
+@nb.njit(cache=True, nogil=True)
+def _variances(residual, model, floor):
+    # Three passes over each pattern's pixels (numpy's made eight, and
+    # were a tenth of the full field's time)
+    n, p = residual.shape
+    out = np.empty((n, p))
+    for i in range(n):
+        mean = 0.0
+        for j in range(p):
+            mean += model[i, j]
+        mean /= p
+        mr2 = 0.0
+        mm = 0.0
+        r2 = 0.0
+        for j in range(p):
+            m = model[i, j] - mean
+            e2 = residual[i, j] ** 2
+            mr2 += m * e2
+            mm += m * m
+            r2 += e2
+        r2 /= p
+        slope = max(mr2 / mm, 0.0)
+        # A variance model is no licence for a pixel to weigh without bound
+        low = floor * r2
+        for j in range(p):
+            out[i, j] = max(r2 + slope * (model[i, j] - mean), low)
+    return out
+
+
+@dataclass(frozen=True)
+class _System:
+    """The full field's linear system at a geometry and orientations:
+    residuals (model minus data), Jacobians with the nuisances eliminated,
+    pixel weights, rotation offsets and the normal equations (*normal*)."""
+
+    geometry: MapGeometry
+    rotations: Rotation
+    residual: np.ndarray
+    jg: np.ndarray
+    jr: np.ndarray
+    weights: np.ndarray
+    offsets: Any
+    common: bool = False
+    normal: JointSystem | None = None
+    #: The geometry's prior (standard deviations, the lattice's stretch
+    #: last) and its values against it, if the lattice is fitted
+    geometry_prior: np.ndarray | None = None
+    geometry_offsets: np.ndarray | None = None
