@@ -23,6 +23,7 @@ Usage::
         --seeds 0 1 2 3 4
     python benchmarks/bench_uncertainty.py --maps poly-base poly-px-60 --seeds 0 1 2 3 4
     python benchmarks/bench_uncertainty.py --maps realistic-moderate --grain-points 5 --seeds 0 1
+    python benchmarks/bench_uncertainty.py --from-json results/uncertainty/FILE.jsonl
 """
 
 from __future__ import annotations
@@ -88,6 +89,16 @@ def run(name: str, seed: int) -> dict:
     )
 
 
+def row(r: dict) -> str:
+    z = " ".join(f"{r['err'][k] / r['se'][k]:+5.1f}" for k in PC)
+    ratio = " ".join(f"{r['se'][k] / r['bound'][k]:4.1f}" for k in PC)
+    err = " ".join(f"{r['err'][k]:+.1e}" for k in PC)
+    return (
+        f"{r['map']:<26s} {r['seed']:2d} grains {r['grains']:3d} | err {err} | z {z} | "
+        f"se/bound {ratio} | {'' if r['consistent'] else 'inflated '}{r['seconds']:4.1f} s"
+    )
+
+
 def summary(rows: list[dict], label: str) -> str:
     z = np.array([[r["err"][k] / r["se"][k] for k in PC] for r in rows]).ravel()
     ratio = np.array([[r["se"][k] / r["bound"][k] for k in PC] for r in rows]).ravel()
@@ -106,7 +117,17 @@ def main(argv=None) -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     ap.add_argument("--grain-points", type=int, default=orientations.GRAIN_POINTS)
     ap.add_argument("--json", help="append each map's figures to this file (JSON lines)")
+    ap.add_argument("--from-json", help="print the rows and summary of such a file instead")
     args = ap.parse_args(argv)
+    if args.from_json:
+        with open(args.from_json) as f:
+            rows = [json.loads(line) for line in f]
+        print(f"command: {' '.join(sys.argv)}")
+        print("\n".join(map(row, rows)) + "\n")
+        for name in dict.fromkeys(r["map"] for r in rows):
+            print(summary([r for r in rows if r["map"] == name], name))
+        print(summary(rows, "all"))
+        return
     orientations.GRAIN_POINTS = args.grain_points
     version = subprocess.run(
         ["git", "describe", "--always", "--dirty"], capture_output=True, text=True
@@ -117,15 +138,7 @@ def main(argv=None) -> None:
         for seed in args.seeds:
             r = run(name, seed)
             rows.append(r)
-            z = " ".join(f"{r['err'][k] / r['se'][k]:+5.1f}" for k in PC)
-            ratio = " ".join(f"{r['se'][k] / r['bound'][k]:4.1f}" for k in PC)
-            err = " ".join(f"{r['err'][k]:+.1e}" for k in PC)
-            print(
-                f"{name:<26s} {seed:2d} grains {r['grains']:3d} | err {err} | z {z} | "
-                f"se/bound {ratio} | {'' if r['consistent'] else 'inflated '}"
-                f"{r['seconds']:4.1f} s",
-                flush=True,
-            )
+            print(row(r), flush=True)
             if args.json:
                 with open(args.json, "a") as f:
                     f.write(json.dumps(r) + "\n")
