@@ -22,6 +22,7 @@ Usage::
     python benchmarks/bench_lattice.py --stretches 0.994 1.0 1.006 --seeds 0 1 2
     python benchmarks/bench_lattice.py --cells base fov-2000 --stretches 0.996 --seeds 0
     python benchmarks/bench_lattice.py --kind poly --stretches 0.994 1.0 1.006 --seeds 0 1
+    python benchmarks/bench_lattice.py --stretches 0.994 --seeds 0 1 --reindex
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ import time
 import warnings
 
 import numpy as np
-from bench_envelope import CELLS, PARAMETERS, envelope_map  # run from benchmarks/
+from bench_envelope import CELLS, PARAMETERS, _reindex_row, envelope_map  # run from benchmarks/
 
 from kikuchipy_geomdic import refine_geometry_dic
 from kikuchipy_geomdic.calibration.refinement import LATTICE_TOLERANCE
@@ -56,7 +57,9 @@ def poly_map(seed: int, stretch: float) -> synthetic.SyntheticMap:
     )  # fmt: skip
 
 
-def run(cell: str, seed: int, stretch: float, tolerance: float, kind: str = "domains") -> str:
+def run(
+    cell: str, seed: int, stretch: float, tolerance: float, kind: str = "domains", again=False
+) -> str:
     poly = kind == "poly"
     sm = poly_map(seed, stretch) if poly else envelope_map("domains", cell, seed, stretch=stretch)
     t0 = time.perf_counter()
@@ -88,13 +91,20 @@ def run(cell: str, seed: int, stretch: float, tolerance: float, kind: str = "dom
         else "held"
     )
     label = "poly" if poly else cell
+    after = ""
+    if again and not poly:
+        # The map reindexed from users' starts at the calibrated detector
+        # (with the CIF's master pattern, as a user has it)
+        after = "\n  " + _reindex_row(
+            label, sm, sm.start_xmap, res.detector, variant_operators()[1:]
+        )
     return (
         f"{label:<9} {seed:2d} data {stretch - 1:+.1%} tol {tolerance:<5g} | PC err "
         + " ".join(f"{err[k]:+.1e}" for k in PC)
         + " | se "
         + " ".join(f"{se[k]:.1e}" for k in PC)
         + f" | max z {z:4.1f} | c/a stretch {fit:<34s} | c axis right {c_right:4.0%} "
-        f"| {seconds:3.0f} s"
+        f"| {seconds:3.0f} s" + after
     )
 
 
@@ -105,6 +115,7 @@ def main(argv=None) -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--stretches", type=float, nargs="+", default=[0.994, 1.0, 1.006])
     ap.add_argument("--tolerances", type=float, nargs="+", default=[0.0, LATTICE_TOLERANCE])
+    ap.add_argument("--reindex", action="store_true", help="reindex each domain map after")
     args = ap.parse_args(argv)
     version = subprocess.run(
         ["git", "describe", "--always", "--dirty"], capture_output=True, text=True
@@ -114,7 +125,7 @@ def main(argv=None) -> None:
         for stretch in args.stretches:
             for seed in args.seeds:
                 for tol in args.tolerances:
-                    print(run(cell, seed, stretch, tol, args.kind), flush=True)
+                    print(run(cell, seed, stretch, tol, args.kind, args.reindex), flush=True)
 
 
 if __name__ == "__main__":
