@@ -68,7 +68,8 @@ def run(
         res = refine_geometry_dic(
             sm.signal, sm.start_xmap, sm.start_detector, sm.master_pattern, sm.energy,
             parameters=PARAMETERS, pseudo_symmetry_ops=None if poly else variant_operators()[1:],
-            lattice_tolerance=tolerance, show_progressbar=False, points=sm.xmap.size,
+            lattice_tolerance=tolerance, show_progressbar=False,
+            points=sm.xmap.size if poly else 100,  # as bench_realistic.py, bench_envelope.py
         )  # fmt: skip
     seconds = time.perf_counter() - t0
     truth = sm.geometry.as_dict()
