@@ -40,6 +40,7 @@ from kikuchipy_geomdic.calibration.uncertainty import (
     UNDETERMINED_RANGE,
     _adequacy,
     _dic_errors,
+    _dic_step,
     _free_errors,
     _inflated,
     _insignificant_moves,
@@ -165,7 +166,7 @@ def _full_field_stage(
             # it is biased by the difference the full field fitted
             at_fit = replace(problem, stretch=1 + ff.lattice["stretch"])
             dic_state = _State.measure(at_fit, outcome.state.geometry, outcome.state.rotations)
-            dic_update = _dic_errors(at_fit, dic_state, orientation_prior)[0]
+            dic_update = _dic_step(at_fit, dic_state, orientation_prior)[0]
         adequacy = _adequacy(
             problem, ff.geometry, ff.standard_errors, ff.held, outcome.state.geometry, dic_update
         )

@@ -23,7 +23,6 @@ from kikuchipy_geomdic.calibration._processing import _compared
 from kikuchipy_geomdic.calibration.jacobian import INTENSITY_STEPS, _intensity_chain
 from kikuchipy_geomdic.calibration.solve import JointSystem
 from kikuchipy_geomdic.geometry import MapGeometry
-from kikuchipy_geomdic.indexing import orientation as ori
 
 #: Smallest pixel noise variance of the full field, as a fraction of its
 #: pattern's mean.
@@ -66,7 +65,7 @@ def _model(
     not)."""
     n = len(problem.points)
     if not jacobians:
-        sim = ori.project_patterns(rotations, geometry.detector(problem.points), arrays)
+        sim = problem.simulate(geometry, rotations, arrays)
         return processing(sim.reshape(n, -1))[0], None, None
     s0, j_rot, j_pc, chain, j_lat = _intensity_chain(
         geometry, problem.points, rotations, arrays, solved, INTENSITY_STEPS, lattice

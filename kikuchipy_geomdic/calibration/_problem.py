@@ -113,10 +113,8 @@ class _Problem:
     def lattice_arrays(self, stretch: float) -> ori.MasterPatternArrays:
         """The master pattern's arrays projecting a crystal whose c axis is
         *stretch* times the phase's."""
-        if stretch == self.stretch:
-            return self.arrays
-        a = self.arrays
-        return ori.MasterPatternArrays(a.upper, a.lower, a.smoothing, stretch)
+        a = self._phase_arrays
+        return a if stretch == 1.0 else ori.MasterPatternArrays(a.upper, a.lower, 0.0, stretch)
 
     def lattice_result(self, stretch: float, standard_error: float) -> dict[str, Any]:
         """What the calibration reports of the lattice fitted: the c axis'
@@ -151,21 +149,28 @@ class _Problem:
         return _variant_table(self.pseudo_symmetry_ops, symmetry)[0].reshape(-1, 4)
 
     @cached_property
+    def _phase_arrays(self) -> ori.MasterPatternArrays:
+        """The master pattern's hemispheres at the energy, its phase's lattice."""
+        return ori.master_pattern_arrays(self.master_pattern, self.energy)
+
+    @cached_property
     def arrays(self) -> ori.MasterPatternArrays:
         """The master pattern's hemispheres at the energy, for projection,
         of a crystal whose c axis is :attr:`stretch` times the phase's."""
-        a = ori.master_pattern_arrays(self.master_pattern, self.energy)
-        return (
-            a
-            if self.stretch == 1.0
-            else ori.MasterPatternArrays(a.upper, a.lower, 0.0, self.stretch)
-        )
+        return self.lattice_arrays(self.stretch)
 
-    def simulate(self, geometry: MapGeometry, rotations: Rotation) -> np.ndarray:
+    def simulate(
+        self,
+        geometry: MapGeometry,
+        rotations: Rotation,
+        arrays: ori.MasterPatternArrays | None = None,
+    ) -> np.ndarray:
         """Patterns (N, rows, columns), float64, as kikuchipy's
         ``get_patterns`` projects them, by this package's compiled
-        kernel (a quarter of kikuchipy's time on 100 patterns)."""
-        return ori.project_patterns(rotations, geometry.detector(self.points), self.arrays)
+        kernel (a quarter of kikuchipy's time on 100 patterns), from
+        *arrays* (default :attr:`arrays`)."""
+        det = geometry.detector(self.points)
+        return ori.project_patterns(rotations, det, self.arrays if arrays is None else arrays)
 
     @property
     def bands_put_back(self) -> bool:

@@ -382,7 +382,8 @@ def lattice_derivative(
     direction ``u`` what the master pattern holds at ``F^-1 u``: the
     intensity changes by ``grad . t`` with ``t = -(u . c) (c - (u . c) u)``,
     the tangential move. The tangential gradient is ``j_rot x u`` (the
-    rotation derivative is ``u x grad``), all in the sample frame. First
+    rotation derivative is ``u x grad``), all in the sample frame; being
+    normal to ``u``, its product with ``t`` is ``-(u . c) j_rot . (u x c)``. First
     order in ``e``, as HR-EBSD's shifts are; the bands' widths, which
     change with the d-spacings by as little, are not modelled.
 
@@ -416,9 +417,14 @@ def lattice_derivative(
     # The c axis in the sample frame: the crystal's z under the inverse
     c = (~Rotation(np.asarray(quaternions).reshape(-1, 4))).to_matrix()[:, :, 2]
     u = np.asarray(directions, dtype=np.float64)
-    uc = np.einsum("npi,ni->np", u, c)
-    t = -uc[..., None] * (c[:, None, :] - uc[..., None] * u)
-    return np.einsum("npi,npi->np", np.cross(j_rot, u), t)
+    j = np.asarray(j_rot, dtype=np.float64)
+    c0, c1, c2 = (c[:, None, i] for i in range(3))
+    u0, u1, u2 = u[..., 0], u[..., 1], u[..., 2]
+    # Component by component: np.cross and einsum copied the stacks
+    along = j[..., 0] * (u1 * c2 - u2 * c1)
+    along += j[..., 1] * (u2 * c0 - u0 * c2)
+    along += j[..., 2] * (u0 * c1 - u1 * c0)
+    return -(u0 * c0 + u1 * c1 + u2 * c2) * along
 
 
 def _directions(pcs: np.ndarray, shape: tuple[int, int], om: np.ndarray) -> np.ndarray:

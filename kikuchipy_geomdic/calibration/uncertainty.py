@@ -108,12 +108,11 @@ def _named_errors(names: Sequence[str], solved_errors) -> dict[str, float]:
     return {k: se[k] for k in (*names, TILT_DIFFERENCE) if k in se}
 
 
-def _dic_update(problem: _Problem, state: _State, prior) -> tuple[JointUpdate, np.ndarray]:
-    """The DIC stage's joint solve with every parameter free at *state*:
-    the step it would take from there and its (statistical) standard
-    errors; and the systematic standard errors (K,) that add to them:
-    the grains' spread (:func:`_grain_errors`) or, with the crystal
-    model, the detector quadrants' (:func:`_region_errors`)."""
+def _dic_step(problem: _Problem, state: _State, prior) -> tuple[JointUpdate, Any, Any, Any]:
+    """The DIC stage's joint solve with every parameter free at *state*
+    (the step it would take from there and its statistical standard
+    errors), with its linear system, rotation offsets and the components'
+    variances."""
     solved, _ = solved_parameters(problem.parameters)
     linear = _linearise(problem, state.geometry, state.field, solved)
     offsets = problem.rotation_offsets(state.rotations)
@@ -126,6 +125,15 @@ def _dic_update(problem: _Problem, state: _State, prior) -> tuple[JointUpdate, n
         0.0,
         problem.crystal is not None,
     )
+    return update, linear, offsets, var
+
+
+def _dic_update(problem: _Problem, state: _State, prior) -> tuple[JointUpdate, np.ndarray]:
+    """The DIC stage's joint solve at *state* (:func:`_dic_step`) and the
+    systematic standard errors (K,) that add to its statistical ones:
+    the grains' spread (:func:`_grain_errors`) or, with the crystal
+    model, the detector quadrants' (:func:`_region_errors`)."""
+    update, linear, offsets, var = _dic_step(problem, state, prior)
     jg, jr, b = linear
     if problem.crystal is None:
         # A polycrystal: what each grain's patterns share, from the
