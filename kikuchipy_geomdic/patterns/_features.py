@@ -2,15 +2,16 @@
 
 Both backends rank corners by the same strength (the smaller
 structure-tensor eigenvalue, Sobel derivatives, box window) and pick them
-greedily per ROI, so that they choose the same features.
+with one kernel (:func:`_select`): OpenCV's ``goodFeaturesToTrack`` per
+ROI, run once over the whole pattern, so that they choose the same
+features.
 
 Layer 3 (patterns): may import geometry, io, patterns.
 """
 
 from __future__ import annotations
 
-import functools
-
+import numba as nb
 import numpy as np
 from scipy import ndimage
 
@@ -28,53 +29,78 @@ MIN_DISTANCE = 3
 BLOCK_SIZE = 5
 
 
-@functools.lru_cache(maxsize=32)
-def _crops(boxes, shape):
-    """Per ROI box: the crop around it with a margin of :data:`BLOCK_SIZE`
-    (so that corner strengths at the ROI's edge are those of the whole
-    image) and the ROI's mask in it, read-only; None for an empty ROI.
-    Cached: the same for every pattern of a map."""
-    out = []
-    for box in boxes:
-        if box is None:
-            out.append(None)
+@nb.njit(cache=True, nogil=True)
+def _select(resp, labels, n_rois, floor, per_roi):
+    """Features (n, 2; x, y) of the corner strengths *resp* (2D): in each
+    ROI of *labels* (2D, -1 outside every ROI), its local maxima (3 x 3)
+    stronger than :data:`QUALITY` of the ROI's strongest and than *floor*,
+    taken strongest first, each at least :data:`MIN_DISTANCE` from those
+    taken before, *per_roi* at most; in ROI order, strongest first.
+
+    OpenCV's ``goodFeaturesToTrack`` called per ROI (one call per ROI so
+    that every ROI gets its quota: on the whole image, strong band
+    intersections would take all the corners) chooses these: the strength
+    is the whole pattern's, the same as a crop's with a margin, and so is
+    the local maximum; one pass instead of 64 calls per pattern (a
+    third of the DIC measurement's time)."""
+    ny, nx = resp.shape
+    top = np.full(n_rois, -np.inf)
+    for i in range(ny):
+        for j in range(nx):
+            lab = labels[i, j]
+            if lab >= 0 and resp[i, j] > top[lab]:
+                top[lab] = resp[i, j]
+    rr = np.empty(ny * nx, np.int64)
+    cc = np.empty(ny * nx, np.int64)
+    val = np.empty(ny * nx)
+    n = 0
+    for i in range(ny):
+        for j in range(nx):
+            lab = labels[i, j]
+            v = resp[i, j]
+            if lab < 0 or not (v > floor and v > QUALITY * top[lab]):
+                continue
+            peak = True
+            for ii in range(max(i - 1, 0), min(i + 2, ny)):
+                for jj in range(max(j - 1, 0), min(j + 2, nx)):
+                    if resp[ii, jj] > v:
+                        peak = False
+            if peak:
+                rr[n], cc[n], val[n] = i, j, v
+                n += 1
+    order = np.argsort(-val[:n], kind="mergesort")
+    kept = np.empty((n_rois, per_roi), np.int64)
+    count = np.zeros(n_rois, np.int64)
+    for k in order:
+        lab = labels[rr[k], cc[k]]
+        if count[lab] == per_roi:
             continue
-        r0, r1, c0, c1 = box
-        R0, R1 = max(r0 - BLOCK_SIZE, 0), min(r1 + BLOCK_SIZE, shape[0])
-        C0, C1 = max(c0 - BLOCK_SIZE, 0), min(c1 + BLOCK_SIZE, shape[1])
-        mask = np.zeros((R1 - R0, C1 - C0), np.uint8)
-        mask[r0 - R0 : r1 - R0, c0 - C0 : c1 - C0] = 255
-        mask.flags.writeable = False
-        out.append((R0, R1, C0, C1, mask))
-    return tuple(out)
+        good = True
+        for q in kept[lab, : count[lab]]:
+            dy, dx = rr[k] - rr[q], cc[k] - cc[q]
+            if dy * dy + dx * dx < MIN_DISTANCE * MIN_DISTANCE:
+                good = False
+                break
+        if good:
+            kept[lab, count[lab]] = k
+            count[lab] += 1
+    out = np.empty((count.sum(), 2))
+    m = 0
+    for lab in range(n_rois):
+        for q in kept[lab, : count[lab]]:
+            out[m, 0], out[m, 1] = cc[q], rr[q]
+            m += 1
+    return out
 
 
-def _features_opencv(cv2, z, labels, boxes, per_roi):
-    # goodFeaturesToTrack takes float32 (only LK needs 8 bits): 8-bit
-    # steps would make corners out of smooth ramps
+def _features_opencv(cv2, z, labels, per_roi):
+    # Corner strengths from float32 (only LK needs 8 bits): 8-bit steps
+    # would make corners out of smooth ramps
     img = z.astype(np.float32)
     eig = cv2.cornerMinEigenVal(img, BLOCK_SIZE)
     both = cv2.cornerEigenValsAndVecs(img, BLOCK_SIZE, 3)[..., :2]
     floor = QUALITY_FLOOR * float(both.max())
-    roi_max = ndimage.maximum(eig, labels, np.arange(len(boxes)))
-    pts = []
-    # One call per ROI so that every ROI gets its quota (on the whole
-    # image, strong band intersections would take all the corners)
-    for crop, top in zip(_crops(boxes, img.shape), roi_max):
-        if crop is None or not top > floor:
-            continue
-        R0, R1, C0, C1, mask = crop
-        found = cv2.goodFeaturesToTrack(
-            img[R0:R1, C0:C1],
-            maxCorners=per_roi,
-            qualityLevel=max(QUALITY, floor / top),
-            minDistance=MIN_DISTANCE,
-            mask=mask,
-            blockSize=BLOCK_SIZE,
-        )
-        if found is not None:
-            pts.append(found.reshape(-1, 2).astype(np.float64) + (C0, R0))
-    return np.concatenate(pts) if pts else np.zeros((0, 2))
+    return _select(eig.astype(np.float64), labels, labels.max() + 1, floor, per_roi)
 
 
 def _eigenvalues(z: np.ndarray) -> np.ndarray:
@@ -92,25 +118,5 @@ def _eigenvalues(z: np.ndarray) -> np.ndarray:
 
 def _features_skimage(z, labels, per_roi):
     edge, resp = _eigenvalues(z)
-    floor = QUALITY_FLOOR * edge.max()
-    n_rois = labels.max() + 1
-    peak = (resp == ndimage.maximum_filter(resp, size=3, mode="nearest")) & (labels >= 0)
-    peak &= resp > floor
-    roi_max = np.append(ndimage.maximum(resp, labels, np.arange(n_rois)), np.inf)
-    peak &= resp >= QUALITY * roi_max[labels]
-    rr, cc = np.nonzero(peak)
-    lab, val = labels[rr, cc], resp[rr, cc]
-    order = np.lexsort((-val, lab))  # By ROI, strongest first
-    rr, cc, lab = rr[order], cc[order], lab[order]
-    # Greedy minimum distance within each ROI, as goodFeaturesToTrack
-    chosen = []
-    for group in np.split(np.arange(lab.size), np.flatnonzero(np.diff(lab)) + 1):
-        kept = []
-        for k in group:
-            if all((rr[k] - rr[q]) ** 2 + (cc[k] - cc[q]) ** 2 >= MIN_DISTANCE**2 for q in kept):
-                kept.append(k)
-                if len(kept) == per_roi:
-                    break
-        chosen.extend(kept)
-    chosen = np.sort(np.array(chosen, dtype=np.int64))
-    return np.stack([cc[chosen], rr[chosen]], axis=1).astype(np.float64)
+    floor = QUALITY_FLOOR * float(edge.max())
+    return _select(np.asarray(resp, np.float64), labels, labels.max() + 1, floor, per_roi)

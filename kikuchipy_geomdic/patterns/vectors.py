@@ -183,12 +183,12 @@ def pattern_vectors(
     a, b = _prepare(a, binning, o["smoothing"]), _prepare(b, binning, o["smoothing"])
     # Features closer than half a window to the edge are not used: their
     # LK window would reach outside the pattern
-    labels, boxes = _tracking_labels(shape, rois, binning, a.shape, window // 2)
+    labels = _tracking_labels(shape, rois, binning, a.shape, window // 2)[0]
     top = _max_levels(a.shape, window, o["levels"])
     if backend == "opencv":
         cv2 = _import_cv2()
         img_a, img_b = _to_uint8(a, b)
-        pts = _features_opencv(cv2, a, labels, boxes, o["features_per_roi"])
+        pts = _features_opencv(cv2, a, labels, o["features_per_roi"])
         track = partial(_track_opencv, cv2, window=window, levels=top)
     else:
         img_a, img_b = a, b
