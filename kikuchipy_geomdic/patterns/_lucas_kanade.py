@@ -167,9 +167,10 @@ def _window_centres(img: np.ndarray, pts: np.ndarray, window: int) -> np.ndarray
     gx, gy = _Windows(list(_gradients(img)), half)(pts[:, 0], pts[:, 1], (0, 1))
     o = np.arange(-half, half + 1, dtype=np.float64)
     ox, oy = np.tile(o, o.size), np.repeat(o, o.size)
-    g11, g12, g22 = (gx * gx).sum(1), (gx * gy).sum(1), (gy * gy).sum(1)
-    v1 = (gx * gx * ox + gx * gy * oy).sum(1)
-    v2 = (gx * gy * ox + gy * gy * oy).sum(1)
+    xx, xy, yy = gx * gx, gx * gy, gy * gy
+    g11, g12, g22 = xx.sum(1), xy.sum(1), yy.sum(1)
+    v1 = xx @ ox + xy @ oy
+    v2 = xy @ ox + yy @ oy
     det = g11 * g22 - g12**2
     with np.errstate(divide="ignore", invalid="ignore"):
         c = np.stack([(g22 * v1 - g12 * v2) / det, (g11 * v2 - g12 * v1) / det], axis=1)

@@ -33,11 +33,18 @@ from kikuchipy_geomdic.patterns.simulation import check_master_pattern
 __all__ = ["phases_match", "describe_phase", "check_phase", "match_phase", "replace_phase"]
 
 
+#: Proper subgroup's name of each point group's name met: orix builds the
+#: subgroup anew each time (40 ms, a twentieth of a calibration's time)
+_PROPER: dict[str, str] = {}
+
+
 def _proper_point_group(phase: Phase) -> str | None:
     pg = phase.point_group
     if pg is None:
         return None
-    return pg.proper_subgroup.name
+    if pg.name not in _PROPER:
+        _PROPER[pg.name] = pg.proper_subgroup.name
+    return _PROPER[pg.name]
 
 
 def _lattice(phase: Phase) -> np.ndarray | None:

@@ -8,6 +8,8 @@ from orix.quaternion import Rotation
 from orix.quaternion.symmetry import Oh
 
 from kikuchipy_geomdic.calibration._systematic import (
+    PRIOR_GRAINS,
+    _with_prior,
     _grain_errors,
     _grains,
     _quadrants,
@@ -121,3 +123,15 @@ def test_grains_of_grains_in_any_symmetry_equivalent():
     # No grain split, none merged
     assert all(len(np.unique(labels[grain == g])) == 1 for g in range(12))
     assert len(np.unique(labels)) == 12
+
+
+def test_the_prior_fades_as_the_grains_grow_in_number():
+    """The DIC stage's variance raises a few grains' standard error by a
+    share PRIOR_GRAINS / (grains - 1 + PRIOR_GRAINS) of the difference,
+    is all there is from one grain, and never lowers one."""
+    se, prior = 1.0, 3.0
+    assert _with_prior(se, prior, 1.0) == prior
+    six = _with_prior(se, prior, 6.0)
+    assert np.isclose(six**2, 1 + PRIOR_GRAINS / (5 + PRIOR_GRAINS) * 8)
+    assert se < _with_prior(se, prior, 121.0) < 1.1 < six < prior
+    assert _with_prior(prior, se, 6.0) == prior
