@@ -85,6 +85,10 @@ def run(name: str, seed: int) -> dict:
         systematic={k: float(sys_part.get(k, 0.0)) for k in PC},
         bound={k: float(crb.sigma[k]) for k in PC},
         consistent=bool(res.adequacy.get("consistent", True)),
+        # The DIC stage's step from the full field's solution (a shared
+        # misfit moves the two apart)
+        dic_step={k: float(v) for k, v in res.adequacy.get("dic_step", {}).items() if k in PC},
+        dic_z={k: float(v) for k, v in res.adequacy.get("z", {}).items() if k in PC},
         converged=bool(res.converged),
     )
 

@@ -37,13 +37,17 @@ from kikuchipy_geomdic.indexing.variants import TOLERANCE, _nearest
 #: each still spanning the pattern centre's neighbourhood and a corner.
 REGIONS = (2, 2)
 
-#: Below this many effective grains the grains' spread is itself too
-#: uncertain to stand alone: the full field's PC standard errors are also
-#: never below the DIC stage's statistical ones (maps of six grains, another
-#: simulator's data: 9 of 225 PC errors beyond 3 of the spread's standard
-#: errors; none with the floor). Above it, the spread alone (121 points of
-#: random orientations: RMS error / sigma 1.07, sigma 1.5x the bound).
-FEW_GRAINS = 20
+#: The prior variance of the PC (:func:`_with_prior`) counts as the
+#: evidence of this many parts (grains, or the detector's quadrants) beside
+#: the spread over the map's own: the spread of six grains or of four
+#: quadrants is itself too uncertain to stand alone (six-grain maps,
+#: another simulator's data: 9 of 225 PC errors beyond 3 of its standard
+#: errors, up to 7.0; a held-out domain map of 60 px: pcy at 4.5), the
+#: prior in full as a floor too wide (RMS error / sigma 0.62 and 0.41).
+#: Chosen on seeds 0-2 of the envelope's polycrystals (RMS 0.75, largest
+#: 2.6), held on seeds 3-4 (0.83, 2.7); one part instead left a 16-grain
+#: map with a detector shadow at 3.3. At 121 grains the spread nearly alone.
+PRIOR_PARTS = 2.0
 
 #: Degrees of freedom of the grains' spread at least (a map of about
 #: four grains of equal weight): its variance is scaled by t's,
@@ -79,9 +83,9 @@ def _region_errors(
     linear system of all the pixels (*residual* (N, P), Jacobians
     *jg* (N, P, K) and *jr* (N, P, 3), *weights* (N, P), the orientation
     prior's *offsets* and *prior*, *common* rotation, the geometry's
-    *geometry_prior* and *geometry_offsets*) with the weights of
+    *geometry_prior* and *geometry_offsets*) with
     the pixels (or components) outside the *region* (P,, labels from
-    :func:`_quadrants`) set to zero; ``d_0``, ``C_0`` from all of them. Where
+    :func:`_quadrants`) left out; ``d_0``, ``C_0`` from all of them. Where
     the model fits, ``d_r - d_0`` scatters with covariance
     ``C_r - C_0``; the excess, ``e = mean_r((d_r - d_0)^2 - (C_r - C_0))``,
     is the regions' own biases' scatter, and the whole detector's bias,
@@ -98,8 +102,10 @@ def _region_errors(
     all_ = solve_joint(jg, jr, residual, weights, **kw)
     excess = []
     for r in range(REGIONS[0] * REGIONS[1]):
-        w = np.where(region[None, :] == r, weights, 0.0)
-        upd = solve_joint(jg, jr, residual, w, **kw)
+        # The region's own pixels: the others' weights would be zero, and
+        # building on all of them cost four whole systems more
+        sel = region == r
+        upd = solve_joint(jg[:, sel], jr[:, sel], residual[:, sel], weights[:, sel], **kw)
         d = upd.delta - all_.delta
         v = np.diag(upd.covariance) - np.diag(all_.covariance)
         excess.append(d**2 - np.clip(v, 0, None))
@@ -146,8 +152,8 @@ def _grain_errors(
     """
     k = system.k
     b = np.asarray(residual, dtype=np.float64)
-    ar = (system.jrw_t @ b[..., None])[..., 0] + system.prior_precision * offsets
-    ag = (system.jgw_t @ b[..., None])[..., 0]
+    ag, ar = system.products(b)
+    ar = ar + system.prior_precision * offsets
     a_inv_r = np.einsum("nij,nj->ni", system.a_inv, ar)
     grad = ag - np.einsum("nki,nk->ni", system.bb, a_inv_r)
     full = system.full
@@ -181,3 +187,16 @@ def _grain_errors(
     nu = np.maximum(effective - 1, MIN_DOF)
     model = np.diag(system.solve(b, offsets).covariance)
     return np.sqrt(np.clip(jackknife * nu / (nu - 2) - model, 0, None)), float(effective.min())
+
+
+def _with_prior(se: float, prior: float, parts: float) -> float:
+    """The standard error *se* whose systematic part comes from the spread
+    over *parts* parts of the map (its effective grains,
+    :func:`_grain_errors`, or the detector's quadrants), its variance
+    raised towards the *prior* one where that is larger, with the weight
+    of :data:`PRIOR_PARTS` parts against the spread's degrees of freedom:
+    a shrinkage estimate of the variance, whose prior fades as the parts
+    grow in number (and is all there is from one part)."""
+    nu = max(parts - 1, 0.0)
+    weight = PRIOR_PARTS / (nu + PRIOR_PARTS)
+    return float(np.sqrt(se**2 + weight * max(prior**2 - se**2, 0.0)))

@@ -220,11 +220,14 @@ def test_crystal_model_keeps_a_six_variant_maps_variants():
     assert np.ptp(off) < 0.1
 
 
-def test_crystal_model_errors_floored_by_free_rotations(monkeypatch):
-    """The crystal model's full-field PC standard errors are never below
+def test_crystal_model_errors_raised_towards_free_rotations(monkeypatch):
+    """The crystal model's full-field standard errors are raised towards
     the DIC stage's with a free rotation per pattern (a misfit all
-    patterns share can fit the tie to one parent)."""
+    patterns share can fit the tie to one parent): the PC's by the share
+    of PRIOR_PARTS against the quadrants' three degrees of freedom, the
+    angles' in full."""
     import kikuchipy_geomdic.calibration._full_field as ff
+    from kikuchipy_geomdic.calibration._systematic import PRIOR_PARTS, REGIONS
     from kikuchipy_geomdic.calibration.uncertainty import _free_errors
 
     seen = {}
@@ -236,13 +239,15 @@ def test_crystal_model_errors_floored_by_free_rotations(monkeypatch):
     monkeypatch.setattr(ff, "_free_errors", loud)
     sm = synthetic.synthetic_map("Si", (5, 5), "single", shape=(60, 60), seed=1)
     res = sm.signal.refine_geometry_dic(
-        *sm.start_inputs[1:], parameters=["pcx", "pcy", "pcz"], orientation_model="crystal",
-        full_field=True, show_progressbar=False,
+        *sm.start_inputs[1:], parameters=["pcx", "pcy", "pcz", "tilt"],
+        orientation_model="crystal", full_field=True, show_progressbar=False,
     )  # fmt: skip
     assert res.orientation_model == "crystal"
     assert np.all(np.isfinite(seen["free"])) and np.all(seen["free"] > 0)
+    share = PRIOR_PARTS / (REGIONS[0] * REGIONS[1] - 1 + PRIOR_PARTS)
     for n in ("pcx", "pcy", "pcz"):
-        assert res.standard_errors[n] == pytest.approx(0.5)
+        assert np.sqrt(share) * 0.5 <= res.standard_errors[n] < 0.5
+    assert res.standard_errors["tilt"] >= 0.5 or not np.isfinite(res.standard_errors["tilt"])
 
 
 def _domain_map(pc, seed, perturbation, static=False, **kwargs):

@@ -8,12 +8,12 @@ from orix.quaternion import Rotation
 from orix.quaternion.symmetry import Oh
 
 from kikuchipy_geomdic.calibration._systematic import (
-    PRIOR_GRAINS,
-    _with_prior,
+    PRIOR_PARTS,
     _grain_errors,
     _grains,
     _quadrants,
     _region_errors,
+    _with_prior,
 )
 from kikuchipy_geomdic.calibration.solve import JointSystem, solve_joint
 from kikuchipy_geomdic.indexing.variants import _proper_rotations
@@ -127,11 +127,11 @@ def test_grains_of_grains_in_any_symmetry_equivalent():
 
 def test_the_prior_fades_as_the_grains_grow_in_number():
     """The DIC stage's variance raises a few grains' standard error by a
-    share PRIOR_GRAINS / (grains - 1 + PRIOR_GRAINS) of the difference,
+    share PRIOR_PARTS / (grains - 1 + PRIOR_PARTS) of the difference,
     is all there is from one grain, and never lowers one."""
     se, prior = 1.0, 3.0
     assert _with_prior(se, prior, 1.0) == prior
     six = _with_prior(se, prior, 6.0)
-    assert np.isclose(six**2, 1 + PRIOR_GRAINS / (5 + PRIOR_GRAINS) * 8)
+    assert np.isclose(six**2, 1 + PRIOR_PARTS / (5 + PRIOR_PARTS) * 8)
     assert se < _with_prior(se, prior, 121.0) < 1.1 < six < prior
     assert _with_prior(prior, se, 6.0) == prior
