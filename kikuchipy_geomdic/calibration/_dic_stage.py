@@ -441,7 +441,7 @@ def _joint_run(problem, geometry0, prior, damping, max_iterations, progress, bas
     start = _State.measure(problem, geometry0, problem.start_rotations)
     carry = _JointCarry(start, damping, fixed=tuple(fixed))
     history: list[dict[str, Any]] = []
-    converged = rechosen = False
+    converged = rechosen = variants_best = False
     for it in range(max_iterations):
         step = _joint_step(problem, carry, it, prior, progress.write, basin)
         carry = step.carry
@@ -456,7 +456,7 @@ def _joint_run(problem, geometry0, prior, damping, max_iterations, progress, bas
             # this close, are chosen before it takes over
             changed = _best_variant_state(problem, carry.state)
             if changed is None:
-                converged = True
+                converged = variants_best = True
                 break
             carry = replace(carry, state=changed)
         if step.end == "stalled":
@@ -473,12 +473,14 @@ def _joint_run(problem, geometry0, prior, damping, max_iterations, progress, bas
                 rechosen = True
                 carry = replace(carry, state=changed)
                 continue
+            variants_best = choose
             # The measurement's floor, if an earlier step got there
             converged = any(h["accepted"] for h in history)
             break
     else:
         converged = carry.settled
-    return _LoopOutcome(carry.state, history, converged, start.field), carry
+    outcome = _LoopOutcome(carry.state, history, converged, start.field, variants_best)
+    return outcome, carry
 
 
 def _best_variant_state(problem: _Problem, state: _State) -> _State | None:

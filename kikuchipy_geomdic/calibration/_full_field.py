@@ -161,6 +161,7 @@ def _full_field_stage(
             progress.write,
             statistical,
             free_se,
+            outcome.variants_best,
         )
         if ff.lattice is not None:
             # The DIC stage's solution at the lattice fitted: at the CIF's
@@ -228,7 +229,7 @@ class _FullField:
 
 
 def _full_field(
-    problem, state, prior, first_it, report, dic_errors=None, free_se=None
+    problem, state, prior, first_it, report, dic_errors=None, free_se=None, variants_best=False
 ) -> _FullField:
     """Gauss-Newton on the pixel intensities from where the DIC stage
     converged: the geometry and one rotation per pattern, the rotations
@@ -262,12 +263,13 @@ def _full_field(
     solved, split = solved_parameters(names)
     k = len(solved)
     start = state.geometry
-    if problem.pseudo_symmetry_ops is not None:
+    if problem.pseudo_symmetry_ops is not None and not variants_best:
         # Each pattern fitted with the variant it shows: the DIC stage
         # chooses them only once in the basin, so one that stopped short of
         # it left the starts' (on a BaTiO3 domain map from users' starts,
         # a random variant per point: the PC ended 4.7e-3 off at 18
-        # standard errors; within two with the variants chosen here)
+        # standard errors; within two with the variants chosen here).
+        # Where it ended on a choice that changed nothing, they are
         state = replace(state, rotations=problem.best_variants(start, state.rotations))
     processing = _estimate_processing(problem, problem.arrays, start, state.rotations)
     history = []

@@ -415,12 +415,14 @@ class _State:
 @dataclass(frozen=True)
 class _LoopOutcome:
     """What a loop returns: the final state, one history record per trial
-    step, whether it converged and the field at the start."""
+    step, whether it converged, the field at the start and whether the
+    state's variants were found each point's best at its geometry."""
 
     state: _State
     history: list[dict[str, Any]]
     converged: bool
     field_before: dsp.DisplacementField
+    variants_best: bool = False
 
 
 def _step_record(
