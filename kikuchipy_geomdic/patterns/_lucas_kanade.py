@@ -10,6 +10,9 @@ Layer 3 (patterns): may import geometry, io, patterns.
 
 from __future__ import annotations
 
+import math
+
+import numba as nb
 import numpy as np
 from scipy import ndimage
 
@@ -163,16 +166,42 @@ def _window_centres(img: np.ndarray, pts: np.ndarray, window: int) -> np.ndarray
     """
     if len(pts) == 0:
         return np.zeros((0, 2))
-    half = window // 2
-    gx, gy = _Windows(list(_gradients(img)), half)(pts[:, 0], pts[:, 1], (0, 1))
-    o = np.arange(-half, half + 1, dtype=np.float64)
-    ox, oy = np.tile(o, o.size), np.repeat(o, o.size)
-    xx, xy, yy = gx * gx, gx * gy, gy * gy
-    g11, g12, g22 = xx.sum(1), xy.sum(1), yy.sum(1)
-    v1 = xx @ ox + xy @ oy
-    v2 = xy @ ox + yy @ oy
-    det = g11 * g22 - g12**2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        c = np.stack([(g22 * v1 - g12 * v2) / det, (g11 * v2 - g12 * v1) / det], axis=1)
-    # Cannot leave the window; a degenerate tensor keeps the centre
-    return np.where(np.isfinite(c), np.clip(c, -half, half), 0.0)
+    gx, gy = _gradients(img)
+    return _centres(gx, gy, np.asarray(pts, dtype=np.float64), window // 2)
+
+
+@nb.njit(cache=True, nogil=True)
+def _centres(gx, gy, pts, half):
+    """:func:`_window_centres` of gradients *gx*, *gy* in one pass: each
+    window's gradients sampled bilinearly as :class:`_Windows` samples them
+    (centres clipped to one pixel outside, the edge repeated), their
+    structure sums taken as they are sampled (the NumPy passes over (n,
+    window**2) arrays took a tenth of the DIC measurement)."""
+    h, w = gx.shape
+    out = np.zeros((pts.shape[0], 2))
+    for k in range(pts.shape[0]):
+        x, y = min(max(pts[k, 0], -1.0), w), min(max(pts[k, 1], -1.0), h)
+        x0, y0 = math.floor(x), math.floor(y)
+        fx, fy = x - x0, y - y0
+        g11 = g12 = g22 = v1 = v2 = 0.0
+        for oy in range(-half, half + 1):
+            r0 = min(max(int(y0) + oy, 0), h - 1)
+            r1 = min(max(int(y0) + oy + 1, 0), h - 1)
+            for ox in range(-half, half + 1):
+                c0 = min(max(int(x0) + ox, 0), w - 1)
+                c1 = min(max(int(x0) + ox + 1, 0), w - 1)
+                top = gx[r0, c0] + fx * (gx[r0, c1] - gx[r0, c0])
+                sx = top + fy * (gx[r1, c0] + fx * (gx[r1, c1] - gx[r1, c0]) - top)
+                top = gy[r0, c0] + fx * (gy[r0, c1] - gy[r0, c0])
+                sy = top + fy * (gy[r1, c0] + fx * (gy[r1, c1] - gy[r1, c0]) - top)
+                g11 += sx * sx
+                g12 += sx * sy
+                g22 += sy * sy
+                v1 += sx * sx * ox + sx * sy * oy
+                v2 += sx * sy * ox + sy * sy * oy
+        det = g11 * g22 - g12 * g12
+        cx, cy = (g22 * v1 - g12 * v2) / det, (g11 * v2 - g12 * v1) / det
+        # Cannot leave the window; a degenerate tensor keeps the centre
+        if math.isfinite(cx) and math.isfinite(cy):
+            out[k, 0], out[k, 1] = min(max(cx, -half), half), min(max(cy, -half), half)
+    return out
