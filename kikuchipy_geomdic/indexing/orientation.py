@@ -215,8 +215,7 @@ def _stage(
         shape[0] // b,
         shape[1] // b,
         om,
-        mp.upper,
-        mp.lower,
+        mp.hemispheres,
         float(mp.scale),
         max_evaluations,
         np.deg2rad(TOLERANCE if b == 1 else COARSE_TOLERANCE),
@@ -370,7 +369,7 @@ def _full_ncc(patterns, q, pcs, om, arrays):
     n, shape = patterns.shape[0], patterns.shape[1:]
     return _stack_ncc(
         np.ascontiguousarray(patterns.reshape(n, -1)), np.ascontiguousarray(q), pcs, shape[0],
-        shape[1], om, arrays.upper, arrays.lower, float(arrays.scale),
+        shape[1], om, arrays.hemispheres, float(arrays.scale),
     )  # fmt: skip
 
 

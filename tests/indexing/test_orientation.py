@@ -17,7 +17,15 @@ from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.indexing import orientation as ori
 from kikuchipy_geomdic.indexing._gauss_newton import _quat_step
-from kikuchipy_geomdic.indexing._lambert import SUMS, _atan_unit, _direction_cosines, _project
+from kikuchipy_geomdic.indexing._lambert import (
+    SUMS,
+    _atan_unit,
+    _direction_columns,
+    _direction_cosines,
+    _project,
+    _rotation_matrix,
+    _step_sums,
+)
 from kikuchipy_geomdic.indexing.variants import variant_operators
 from kikuchipy_geomdic.patterns.simulation import simulate_patterns
 from kikuchipy_geomdic.validation import synthetic
@@ -109,23 +117,27 @@ def test_rotation_derivative_matches_central_differences(si_mp, det):
 
 
 def test_gauss_newton_sums_equal_the_stored_pattern_and_jacobian(si_mp, det):
-    """The one-pass sums a Gauss-Newton step uses are those of the
-    projection and Jacobian stored per pixel."""
+    """The one-pass sums a Gauss-Newton step uses (the branch-free vector
+    kernel) are those of the projection and Jacobian stored per pixel,
+    over orientations that put pixels in both hemispheres and on both
+    sides of the Lambert square's diagonals."""
     arrays = ori.master_pattern_arrays(si_mp, 20)
-    dc = _direction_cosines(det.pc.reshape(3), det.nrows, det.ncols, ori.detector_matrix(det))
-    q = Rotation.random().data.reshape(4).astype(float)
-    v, j = np.empty(dc.shape[0]), np.empty((dc.shape[0], 3))
-    _project(q, dc, arrays.upper, arrays.lower, arrays.scale, v, j, True)
-    e = np.random.default_rng(0).normal(size=v.size)
-    sums = np.empty(SUMS)
-    _project(
-        q, dc, arrays.upper, arrays.lower, arrays.scale, np.empty(1), np.empty((1, 3)), True,
-        None, e, sums,
-    )  # fmt: skip
-    jj = j.T @ j
-    expected = [v.sum(), v @ v, v @ e, *j.sum(0), *(j.T @ v), *(j.T @ e)]
-    expected += [jj[0, 0], jj[0, 1], jj[0, 2], jj[1, 1], jj[1, 2], jj[2, 2]]
-    np.testing.assert_allclose(sums, expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())
+    pc, om = det.pc.reshape(3), ori.detector_matrix(det)
+    dc = _direction_cosines(pc, det.nrows, det.ncols, om)
+    np.testing.assert_allclose(_direction_columns(pc, det.nrows, det.ncols, om), dc.T, atol=1e-15)
+    e = np.random.default_rng(0).normal(size=dc.shape[0])
+    hemispheres = set()
+    for q in Rotation.random(8).data:
+        v, j = np.empty(dc.shape[0]), np.empty((dc.shape[0], 3))
+        _project(q, dc, arrays.upper, arrays.lower, arrays.scale, v, j, True)
+        sums = np.empty(SUMS)
+        _step_sums(q, np.ascontiguousarray(dc.T), arrays.hemispheres, arrays.scale, e, sums)
+        jj = j.T @ j
+        expected = [v.sum(), v @ v, v @ e, *j.sum(0), *(j.T @ v), *(j.T @ e)]
+        expected += [jj[0, 0], jj[0, 1], jj[0, 2], jj[1, 1], jj[1, 2], jj[2, 2]]
+        np.testing.assert_allclose(sums, expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())
+        hemispheres.update(np.sign(dc @ _rotation_matrix(q)[2]).tolist())
+    assert hemispheres == {-1.0, 1.0}  # can fail: both hemispheres were looked up
 
 
 def test_refine_recovers_truth_from_starts_degrees_off(polycrystal):
