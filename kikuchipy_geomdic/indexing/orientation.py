@@ -182,18 +182,19 @@ PX_DECIMALS = 2
 
 
 def _stage(
-    patterns, q, pcs, om, arrays, binning, sigma, max_step, max_evaluations=None, accelerate=False
-):
-    """One stage of the schedule: every pattern binned by *binning*, both
-    it and the master pattern smoothed by *sigma* degrees; at most
-    *max_evaluations* projections per pattern (default
-    :data:`MAX_EVALUATIONS`), Gauss-Newton steps accelerated or not
-    (``_gauss_newton``)."""
+    patterns, q, pcs, om, arrays, binning, sigma, max_step, max_evaluations=None, accelerate=False,
+    binned=None,
+):  # fmt: skip
+    """One stage of the schedule: every pattern binned by *binning* (or
+    given so, *binned*), both it and the master pattern smoothed by
+    *sigma* degrees; at most *max_evaluations* projections per pattern
+    (default :data:`MAX_EVALUATIONS`), Gauss-Newton steps accelerated or
+    not (``_gauss_newton``)."""
     if max_evaluations is None:
         max_evaluations = MAX_EVALUATIONS[binning == 1]
     n, shape = patterns.shape[0], patterns.shape[1:]
     b = binning
-    level = bin_pattern(patterns, b, np.float32) if b > 1 else patterns
+    level = binned if binned is not None else _binned(patterns, b)
     if sigma > 0:
         # The same blur on both sides, so that the smoothed optimum is the
         # orientation's (a sharp pattern against a smoothed simulation
@@ -222,6 +223,11 @@ def _stage(
         np.deg2rad(max_step),
         accelerate,
     )
+
+
+def _binned(patterns, binning):
+    """The patterns binned by *binning* as float32 (as they are at 1)."""
+    return bin_pattern(patterns, binning, np.float32) if binning > 1 else patterns
 
 
 def _schedule(shape, levels):
@@ -358,8 +364,13 @@ def _descend(patterns, q, pcs, om, arrays, schedule, max_step):
     full-resolution equivalents (a stage binned by b costs 1 / b**2)."""
     ncc = conv = None
     evaluations = np.zeros(patterns.shape[0], dtype=np.float64)
+    binned = {}  # each binning once, for all its smoothings
     for b, sigma in schedule:
-        q, ncc, k, conv = _stage(patterns, q, pcs, om, arrays, b, sigma, max_step)
+        if b not in binned:
+            binned[b] = _binned(patterns, b)
+        q, ncc, k, conv = _stage(
+            patterns, q, pcs, om, arrays, b, sigma, max_step, binned=binned[b]
+        )  # fmt: skip
         evaluations += k / b**2
     return q, ncc, conv, evaluations
 
