@@ -231,8 +231,21 @@ def _binned(patterns, binning):
 
 
 def _schedule(shape, levels):
-    """(binning, smoothing) of each stage, coarse first."""
-    return [(b, s) for b in pyramid_levels(shape, levels) for s in SMOOTHING.get(b, (0.0,))]
+    """(binning, smoothing) of each stage, coarse first.
+
+    The smoothings of binnings coarser than the coarsest level (a pattern
+    too small for them) run first at the coarsest binned level: they are
+    what widens the basin to starts several degrees off (measured on
+    ``bench_orientations.py far`` at 60 px, binned by 2 at most: 116 of
+    225 points more than 1 deg wrong, 79 of them not flagged, with only
+    the binning's own 1 deg; none with 6, 3 and 1 deg, in an eighth of
+    the time). Without a binned level the schedule is the last stage."""
+    levels = pyramid_levels(shape, levels)
+    stages = [(b, s) for b in levels for s in SMOOTHING.get(b, (0.0,))]
+    if levels[0] > 1:
+        coarser = sorted((b for b in SMOOTHING if b > levels[0]), reverse=True)
+        stages = [(levels[0], s) for b in coarser for s in SMOOTHING[b]] + stages
+    return stages
 
 
 def refine_patterns(
