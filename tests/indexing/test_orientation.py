@@ -154,6 +154,25 @@ def test_refine_recovers_truth_from_starts_degrees_off(polycrystal):
     assert (res.rotations.data[:, 0] >= 0).all()  # one sign, as orix stores
 
 
+def test_small_patterns_refine_from_starts_degrees_off(si_mp):
+    """Patterns too small to bin by 4 (60 px) get the heavy smoothings at
+    their coarsest level, binned by 2, first: starts 5 deg off reach the
+    truth (with only that level's 1 deg smoothing, 16 of 36 stopped
+    degrees away, most of them claiming convergence)."""
+    assert ori._schedule((60, 60), None) == [(2, 6.0), (2, 3.0), (2, 1.0), (1, 0.0)]
+    assert ori._schedule((60, 60), (1,)) == [(1, 0.0)]  # no binned level: as asked
+    sm = synthetic.synthetic_map(
+        si_mp, (6, 6), orientations="random", shape=(60, 60), dose=300, seed=3
+    )
+    start = perturb_rotations(sm.xmap.rotations, 5.0, np.random.default_rng(0), centred=False)
+    assert misorientation(start, sm.xmap.rotations).mean() > 4  # can fail
+    patterns = sm.signal.data.reshape(-1, 60, 60)
+    res = ori.refine_patterns(patterns, start, sm.detector, sm.master_pattern, 20)
+    err = misorientation(res.rotations, sm.xmap.rotations)
+    assert err.max() < 0.05, np.sort(err)[-5:]
+    assert res.converged.all()
+
+
 def test_same_optimum_as_kikuchipy(polycrystal):
     """Both maximise the same NCC: the optima agree far below the noise."""
     from kikuchipy_geomdic.indexing.reindex import refine_orientations
