@@ -20,9 +20,11 @@ everywhere), so the fixed point is the same.
 
 Coarse to fine: the first levels run on patterns binned by 4 and 2
 against a master pattern smoothed to the binned pixel size, which widens
-the basin to starts several degrees off; the last level runs at full
+the basin to starts several degrees off (a pattern too small to bin by 4
+takes the heavy smoothings binned by 2); the last level runs at full
 resolution. The per-pattern kernel is plain array code compiled with
-numba (``nogil``), so dask's threads run chunks in parallel.
+numba (``nogil``, its step sums on vector registers), so dask's threads
+run chunks in parallel.
 
 Layout: the solver is this module's (:func:`pyramid_levels`, the binning
 schedule; :func:`refine_patterns`, a stack of patterns with one PC each,
