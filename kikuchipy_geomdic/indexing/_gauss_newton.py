@@ -12,7 +12,7 @@ import math
 import numba as nb
 import numpy as np
 
-from kikuchipy_geomdic.indexing._lambert import SUMS, _direction_cosines, _project
+from kikuchipy_geomdic.indexing._lambert import SUMS, _direction_columns, _step_sums
 
 
 @nb.njit(cache=True, nogil=True)
@@ -43,7 +43,7 @@ NCC_STALL = 1e-6
 
 
 @nb.njit(cache=True, nogil=True)
-def _gauss_newton(e, q, dc, upper, lower, scale, max_eval, tol, max_step, accelerate):
+def _gauss_newton(e, q, dcol, hemispheres, scale, max_eval, tol, max_step, accelerate):
     """Refine one orientation; return (q, ncc, evaluations, converged).
 
     With *accelerate*, a step that points along the last accepted one and
@@ -61,8 +61,6 @@ def _gauss_newton(e, q, dc, upper, lower, scale, max_eval, tol, max_step, accele
     the master pattern's cells without reaching *tol*."""
     n = e.size
     sums = np.empty(SUMS)
-    none1 = np.empty(1)  # nothing per pixel is stored
-    none2 = np.empty((1, 3))
     se = e.sum()
     em = se / n
     ec = e - em
@@ -77,7 +75,7 @@ def _gauss_newton(e, q, dc, upper, lower, scale, max_eval, tol, max_step, accele
     a_mat = np.empty((5, 5))
     rhs = np.empty(5)
     while evals < max_eval:
-        _project(q, dc, upper, lower, scale, none1, none2, True, None, e, sums)
+        _step_sums(q, dcol, hemispheres, scale, e, sums)
         evals += 1
         sv, svv, sve = sums[0], sums[1], sums[2]
         sm = sv / n
@@ -159,23 +157,28 @@ def _acceleration(x, w_last, step):
 
 @nb.njit(cache=True, nogil=True)
 def _refine_stack(
-    patterns, quats, pcs, nrows, ncols, om, upper, lower, scale, max_eval, tol, step,
+    patterns, quats, pcs, nrows, ncols, om, hemispheres, scale, max_eval, tol, step,
     accelerate=False,
 ):  # fmt: skip
+    """:func:`_gauss_newton` on each pattern of a stack (*hemispheres*: the
+    master pattern's, stacked as :func:`~._lambert._step_sums` takes them)."""
     n = patterns.shape[0]
     q_out = np.empty((n, 4))
     ncc = np.empty(n)
     evals = np.zeros(n, dtype=np.int64)
     conv = np.zeros(n, dtype=np.bool_)
+    dcol = np.empty((3, 0))
     for p in range(n):
-        dc = _direction_cosines(pcs[p], nrows, ncols, om)
+        # A detector of one PC: the directions once
+        if p == 0 or not (pcs[p] == pcs[p - 1]).all():
+            dcol = _direction_columns(pcs[p], nrows, ncols, om)
         e = patterns[p].astype(np.float64)
         if not np.isfinite(e).all():
             q_out[p] = quats[p]
             ncc[p] = np.nan
             continue
         q, c, k, ok = _gauss_newton(
-            e, quats[p].copy(), dc, upper, lower, scale, max_eval, tol, step, accelerate
+            e, quats[p].copy(), dcol, hemispheres, scale, max_eval, tol, step, accelerate
         )
         q_out[p] = q
         ncc[p] = c

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from kikuchipy.detectors import EBSDDetector
@@ -57,6 +58,12 @@ class MasterPatternArrays:
     smoothing: float = 0.0
     stretch: float = 1.0
     _smoothed: dict = field(default_factory=dict, repr=False, compare=False)
+
+    @cached_property
+    def hemispheres(self) -> np.ndarray:
+        """Both hemispheres in one array (2 npx, npx), upper then lower:
+        the Gauss-Newton kernel looks either up without a branch."""
+        return np.ascontiguousarray(np.concatenate([self.upper, self.lower]), dtype=np.float32)
 
     @property
     def scale(self) -> float:

@@ -35,6 +35,7 @@ from kikuchipy_geomdic.indexing._seeds import (
     neighbour_seeds,
     poor_points,
 )
+from kikuchipy_geomdic.patterns.phases import _proper_subgroup
 
 
 def _proper_symmetry(master_pattern) -> np.ndarray:
@@ -43,8 +44,8 @@ def _proper_symmetry(master_pattern) -> np.ndarray:
     phase = getattr(master_pattern, "phase", None)
     if phase is None:
         return np.array([[1.0, 0.0, 0.0, 0.0]])
-    pg = phase.point_group
-    return np.asarray(Rotation(pg.proper_subgroup).flatten().data, dtype=np.float64)
+    ops = Rotation(_proper_subgroup(phase.point_group)).flatten()
+    return np.asarray(ops.data, dtype=np.float64)
 
 
 def _equivalents(ops, sym) -> np.ndarray:

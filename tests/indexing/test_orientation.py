@@ -17,7 +17,15 @@ from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.indexing import orientation as ori
 from kikuchipy_geomdic.indexing._gauss_newton import _quat_step
-from kikuchipy_geomdic.indexing._lambert import SUMS, _atan_unit, _direction_cosines, _project
+from kikuchipy_geomdic.indexing._lambert import (
+    SUMS,
+    _atan_unit,
+    _direction_columns,
+    _direction_cosines,
+    _project,
+    _rotation_matrix,
+    _step_sums,
+)
 from kikuchipy_geomdic.indexing.variants import variant_operators
 from kikuchipy_geomdic.patterns.simulation import simulate_patterns
 from kikuchipy_geomdic.validation import synthetic
@@ -109,23 +117,27 @@ def test_rotation_derivative_matches_central_differences(si_mp, det):
 
 
 def test_gauss_newton_sums_equal_the_stored_pattern_and_jacobian(si_mp, det):
-    """The one-pass sums a Gauss-Newton step uses are those of the
-    projection and Jacobian stored per pixel."""
+    """The one-pass sums a Gauss-Newton step uses (the branch-free vector
+    kernel) are those of the projection and Jacobian stored per pixel,
+    over orientations that put pixels in both hemispheres and on both
+    sides of the Lambert square's diagonals."""
     arrays = ori.master_pattern_arrays(si_mp, 20)
-    dc = _direction_cosines(det.pc.reshape(3), det.nrows, det.ncols, ori.detector_matrix(det))
-    q = Rotation.random().data.reshape(4).astype(float)
-    v, j = np.empty(dc.shape[0]), np.empty((dc.shape[0], 3))
-    _project(q, dc, arrays.upper, arrays.lower, arrays.scale, v, j, True)
-    e = np.random.default_rng(0).normal(size=v.size)
-    sums = np.empty(SUMS)
-    _project(
-        q, dc, arrays.upper, arrays.lower, arrays.scale, np.empty(1), np.empty((1, 3)), True,
-        None, e, sums,
-    )  # fmt: skip
-    jj = j.T @ j
-    expected = [v.sum(), v @ v, v @ e, *j.sum(0), *(j.T @ v), *(j.T @ e)]
-    expected += [jj[0, 0], jj[0, 1], jj[0, 2], jj[1, 1], jj[1, 2], jj[2, 2]]
-    np.testing.assert_allclose(sums, expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())
+    pc, om = det.pc.reshape(3), ori.detector_matrix(det)
+    dc = _direction_cosines(pc, det.nrows, det.ncols, om)
+    np.testing.assert_allclose(_direction_columns(pc, det.nrows, det.ncols, om), dc.T, atol=1e-15)
+    e = np.random.default_rng(0).normal(size=dc.shape[0])
+    hemispheres = set()
+    for q in Rotation.random(8).data:
+        v, j = np.empty(dc.shape[0]), np.empty((dc.shape[0], 3))
+        _project(q, dc, arrays.upper, arrays.lower, arrays.scale, v, j, True)
+        sums = np.empty(SUMS)
+        _step_sums(q, np.ascontiguousarray(dc.T), arrays.hemispheres, arrays.scale, e, sums)
+        jj = j.T @ j
+        expected = [v.sum(), v @ v, v @ e, *j.sum(0), *(j.T @ v), *(j.T @ e)]
+        expected += [jj[0, 0], jj[0, 1], jj[0, 2], jj[1, 1], jj[1, 2], jj[2, 2]]
+        np.testing.assert_allclose(sums, expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())
+        hemispheres.update(np.sign(dc @ _rotation_matrix(q)[2]).tolist())
+    assert hemispheres == {-1.0, 1.0}  # can fail: both hemispheres were looked up
 
 
 def test_refine_recovers_truth_from_starts_degrees_off(polycrystal):
@@ -140,6 +152,25 @@ def test_refine_recovers_truth_from_starts_degrees_off(polycrystal):
     assert res.converged.all()
     assert res.evaluations.max() < 30
     assert (res.rotations.data[:, 0] >= 0).all()  # one sign, as orix stores
+
+
+def test_small_patterns_refine_from_starts_degrees_off(si_mp):
+    """Patterns too small to bin by 4 (60 px) get the heavy smoothings at
+    their coarsest level, binned by 2, first: starts 5 deg off reach the
+    truth (with only that level's 1 deg smoothing, 16 of 36 stopped
+    degrees away, most of them claiming convergence)."""
+    assert ori._schedule((60, 60), None) == [(2, 6.0), (2, 3.0), (2, 1.0), (1, 0.0)]
+    assert ori._schedule((60, 60), (1,)) == [(1, 0.0)]  # no binned level: as asked
+    sm = synthetic.synthetic_map(
+        si_mp, (6, 6), orientations="random", shape=(60, 60), dose=300, seed=3
+    )
+    start = perturb_rotations(sm.xmap.rotations, 5.0, np.random.default_rng(0), centred=False)
+    assert misorientation(start, sm.xmap.rotations).mean() > 4  # can fail
+    patterns = sm.signal.data.reshape(-1, 60, 60)
+    res = ori.refine_patterns(patterns, start, sm.detector, sm.master_pattern, 20)
+    err = misorientation(res.rotations, sm.xmap.rotations)
+    assert err.max() < 0.05, np.sort(err)[-5:]
+    assert res.converged.all()
 
 
 def test_same_optimum_as_kikuchipy(polycrystal):
