@@ -91,6 +91,9 @@ KINDS = {
                    static=False),
     "domains": dict(phase="BaTiO3", orientations="stripes", side=13, mp="dynamical",
                     data="ebsdsim", static=False),
+    # One BaTiO3 crystal, one variant: its c axis in one direction only
+    "bto-single": dict(phase="BaTiO3", orientations="single", side=13, mp="dynamical",
+                       data="ebsdsim", static=False),
 }  # fmt: skip
 
 BASE = dict(

@@ -5,7 +5,10 @@ from a crystal with the c axis ``--stretches`` times the CIF's
 (:func:`~kikuchipy_geomdic.validation.master_patterns.stretched`; 0.989 is
 about a cubic CIF's c/a against BaTiO3's 1.011), each calibrated with the
 lattice held at the CIF's (``lattice_tolerance=0``) and fitted (the
-default tolerance). ``--kind poly``: a BaTiO3 polycrystal instead, 11 x 11
+default tolerance). ``--kind single``: one BaTiO3 crystal of one variant
+(the envelope's ``bto-single`` kind, the domain maps' simulators and
+processing), its c axis in one direction only. ``--kind poly``: a BaTiO3
+polycrystal instead, 11 x 11
 points of random orientations, 96 px, 150 counts/px, static and dynamic
 background removed, the free orientation model (as ``bench_realistic.py``'s
 maps, the same simulator pair as the domain maps): how far a lattice
@@ -22,6 +25,7 @@ Usage::
     python benchmarks/bench_lattice.py --stretches 0.994 1.0 1.006 --seeds 0 1 2
     python benchmarks/bench_lattice.py --cells base fov-2000 --stretches 0.996 --seeds 0
     python benchmarks/bench_lattice.py --kind poly --stretches 0.994 1.0 1.006 --seeds 0 1
+    python benchmarks/bench_lattice.py --kind single --stretches 0.994 1.004 --seeds 0 1 2
     python benchmarks/bench_lattice.py --stretches 0.994 --seeds 0 1 --reindex
 """
 
@@ -61,7 +65,8 @@ def run(
     cell: str, seed: int, stretch: float, tolerance: float, kind: str = "domains", again=False
 ) -> str:
     poly = kind == "poly"
-    sm = poly_map(seed, stretch) if poly else envelope_map("domains", cell, seed, stretch=stretch)
+    crystal = "bto-single" if kind == "single" else "domains"
+    sm = poly_map(seed, stretch) if poly else envelope_map(crystal, cell, seed, stretch=stretch)
     t0 = time.perf_counter()
     with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -91,7 +96,7 @@ def run(
         if lat
         else "held"
     )
-    label = "poly" if poly else cell
+    label = "poly" if poly else cell if kind == "domains" else f"single-{cell}"
     after = ""
     if again and not poly:
         # The map reindexed from users' starts at the calibrated detector
@@ -111,7 +116,7 @@ def run(
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--kind", default="domains", choices=["domains", "poly"])
+    ap.add_argument("--kind", default="domains", choices=["domains", "single", "poly"])
     ap.add_argument("--cells", nargs="+", default=["base"], choices=list(CELLS))
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--stretches", type=float, nargs="+", default=[0.994, 1.0, 1.006])
