@@ -33,7 +33,7 @@ from kikuchipy_geomdic.calibration._systematic import (
     _region_errors,
     _with_prior,
 )
-from kikuchipy_geomdic.calibration.solve import JointSystem, solve_joint
+from kikuchipy_geomdic.calibration.solve import JointSystem
 from kikuchipy_geomdic.calibration.uncertainty import (
     _PC,
     DETERMINACY_LIMITS,
@@ -337,6 +337,7 @@ def _full_field(
             _quadrants(problem.experimental.shape[1:]),
             system.geometry_prior,
             system.geometry_offsets,
+            system.normal,
         )
     # The lattice's part (its stretch solved last), then the geometry's
     stretch_se = float(np.hypot(stretch_se, systematic[-1])) if len(systematic) > k else 0.0
@@ -346,7 +347,7 @@ def _full_field(
     judged = se if free_se is None else np.maximum(se, free_se)
     held = tuple(dict.fromkeys(unseen + _insignificant_moves(solved, judged, moved)))
     if held and system is not None:
-        geometry, rotations, cov = _hold(system, held, start, solved, split, prior, cov)
+        geometry, rotations, cov = _hold(system, held, start, solved, split, cov)
         systematic[[solved.index(n) for n in held]] = 0.0
     cov = cov + np.diag(systematic**2)
     se = _named_errors(names, np.sqrt(np.clip(np.diag(cov), 0, None)))
@@ -358,7 +359,7 @@ def _full_field(
     )
 
 
-def _hold(system: _System, held, start: MapGeometry, solved, split, prior, cov):
+def _hold(system: _System, held, start: MapGeometry, solved, split, cov):
     """The geometry, orientations and covariance with the *held*
     parameters put back to their values in *start*: the constrained
     least-squares step of the converged linear *system*, the orientations
@@ -374,15 +375,9 @@ def _hold(system: _System, held, start: MapGeometry, solved, split, prior, cov):
     )
     # The residual the linear model predicts once they are put back
     residual = system.residual + system.jg[..., idx] @ back
-    upd = solve_joint(
-        system.jg[..., free],
-        system.jr,
-        residual,
-        system.weights,
-        prior=_prior_per_axis(prior),
-        offsets=system.offsets,
-        common=system.common,
-    )
+    # The free columns' normal equations cut from the last ones (their
+    # orientation prior), without the geometry's
+    upd = system.normal.columns(free).solve(residual, system.offsets)
     delta = {solved[i]: float(d) for i, d in zip(free, upd.delta)}
     delta.update({solved[i]: float(b) for i, b in zip(idx, back)})
     geometry = system.geometry.updated(_expand(delta, split))
@@ -447,10 +442,8 @@ def _gauss_newton(
             )
             some_free = all_free
             if free and len(free) < len(solved):
-                some_free = JointSystem.build(
-                    jg[..., cols], jr, weights, prior_rad, common=common,
-                    geometry_prior=None if geo_prior is None else geo_prior[cols],
-                )  # fmt: skip
+                # The free columns' alone, from the same weighted stack
+                some_free = all_free.columns(cols, None if geo_prior is None else geo_prior[cols])
         offsets = problem.rotation_offsets(rotations)
         at = None if not fit_lattice else np.r_[np.zeros(k), stretch - 1]
         full = all_free.solve(residual, offsets, geometry_offsets=at)
