@@ -428,8 +428,9 @@ def _gauss_newton(
         stale = False
         arrays = problem.lattice_arrays(stretch)
         residual, j_geo, j_rot, var = _intensity_system(
-            problem, arrays, geometry, rotations, solved, processing, refresh, fit_lattice
-        )
+            problem, arrays, geometry, rotations, solved, processing, refresh, fit_lattice,
+            weights is None,
+        )  # fmt: skip
         if weights is None:
             # Weights fixed at the first step, so that chi2 compares steps
             weights = 1 / var
