@@ -82,7 +82,8 @@ def _exact_weights():
         coef = np.einsum("nab,nbk->nak", g_inv, np.einsum("npa,npk->nak", bw, x))
         return x - np.einsum("npa,nak->npk", basis, coef), coef
 
-    def system(problem, arrays, geometry, rotations, solved, processing, jacobians=True):
+    def system(problem, arrays, geometry, rotations, solved, processing, jacobians=True, *_):
+        # The lattice and variances flags after the Jacobians' are not used here
         n = len(problem.points)
         e = problem.experimental.reshape(n, -1).astype(np.float64)
         s0, geo, six = _intensity._model(

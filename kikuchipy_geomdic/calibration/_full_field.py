@@ -33,7 +33,7 @@ from kikuchipy_geomdic.calibration._systematic import (
     _region_errors,
     _with_prior,
 )
-from kikuchipy_geomdic.calibration.solve import JointSystem, solve_joint
+from kikuchipy_geomdic.calibration.solve import JointSystem
 from kikuchipy_geomdic.calibration.uncertainty import (
     _PC,
     DETERMINACY_LIMITS,
@@ -339,6 +339,7 @@ def _full_field(
             _quadrants(problem.experimental.shape[1:]),
             system.geometry_prior,
             system.geometry_offsets,
+            system.normal,
         )
     # The lattice's part (its stretch solved last) apart
     lattice_sys = float(systematic[k]) if len(systematic) > k else 0.0
@@ -348,9 +349,7 @@ def _full_field(
     judged = se if free_se is None else np.maximum(se, free_se)
     held = tuple(dict.fromkeys(unseen + _insignificant_moves(solved, judged, moved)))
     if held and system is not None:
-        geometry, rotations, cov, lattice_hold = _hold(
-            system, held, start, solved, split, prior, cov
-        )
+        geometry, rotations, cov, lattice_hold = _hold(system, held, start, solved, split, cov)
         systematic[[solved.index(n) for n in held]] = 0.0
         if lattice_hold is not None:
             step, stretch_se, slope = lattice_hold
@@ -371,7 +370,7 @@ def _full_field(
     )
 
 
-def _hold(system: _System, held, start: MapGeometry, solved, split, prior, cov):
+def _hold(system: _System, held, start: MapGeometry, solved, split, cov):
     """The geometry, orientations and covariance with the *held*
     parameters put back to their values in *start*: the constrained
     least-squares step of the converged linear *system*, the orientations
@@ -392,17 +391,11 @@ def _hold(system: _System, held, start: MapGeometry, solved, split, prior, cov):
     )
     # The residual the linear model predicts once they are put back
     residual = system.residual + system.jg[..., idx] @ back
+    # The free columns' normal equations cut from the last ones (their
+    # orientation prior, the lattice's)
     gp, go = system.geometry_prior, system.geometry_offsets
-    upd = solve_joint(
-        system.jg[..., cols],
-        system.jr,
-        residual,
-        system.weights,
-        prior=_prior_per_axis(prior),
-        offsets=system.offsets,
-        common=system.common,
-        geometry_prior=None if gp is None else gp[cols],
-        geometry_offsets=None if go is None else go[cols],
+    upd = system.normal.columns(cols, None if gp is None else gp[cols]).solve(
+        residual, system.offsets, geometry_offsets=None if go is None else go[cols]
     )
     m = len(free)
     delta = {solved[i]: float(d) for i, d in zip(free, upd.delta)}
@@ -461,8 +454,9 @@ def _gauss_newton(
         stale = False
         arrays = problem.lattice_arrays(stretch)
         residual, j_geo, j_rot, var = _intensity_system(
-            problem, arrays, geometry, rotations, solved, processing, refresh, fit_lattice
-        )
+            problem, arrays, geometry, rotations, solved, processing, refresh, fit_lattice,
+            weights is None,
+        )  # fmt: skip
         if weights is None:
             # Weights fixed at the first step, so that chi2 compares steps
             weights = 1 / var
@@ -475,10 +469,8 @@ def _gauss_newton(
             )
             some_free = all_free
             if free and len(free) < len(solved):
-                some_free = JointSystem.build(
-                    jg[..., cols], jr, weights, prior_rad, common=common,
-                    geometry_prior=None if geo_prior is None else geo_prior[cols],
-                )  # fmt: skip
+                # The free columns' alone, from the same weighted stack
+                some_free = all_free.columns(cols, None if geo_prior is None else geo_prior[cols])
         offsets = problem.rotation_offsets(rotations)
         at = None if not fit_lattice else np.r_[np.zeros(k), stretch - 1]
         full = all_free.solve(residual, offsets, geometry_offsets=at)

@@ -83,17 +83,19 @@ def _model(
 
 
 def _intensity_system(
-    problem, arrays, geometry, rotations, solved, processing, jacobians=True, lattice=False
-):
+    problem, arrays, geometry, rotations, solved, processing, jacobians=True, lattice=False,
+    variances=True,
+):  # fmt: skip
     """Residuals (N, P), geometry and rotation Jacobians with each
     pattern's gain and offset eliminated (with *lattice*, the c axis'
     stretch a column after the geometry's), and the pixel noise variances
     (N, P); the model made by *processing* from the master pattern's
     *arrays*. Without *jacobians*, only the residuals (the Jacobians
-    None)."""
+    None); without *variances*, None for them (the full field weighs by
+    its first step's)."""
     n = len(problem.points)
     shape = tuple(problem.experimental.shape[1:])
-    raw = problem.experimental.reshape(n, -1).astype(np.float64)
+    raw, e, ec = problem.compared_experimental
     # One crystal's patterns compared high-passed: they all share its
     # simulator's misfit, which a polycrystal's grains average (there the
     # high-pass cost more than it removed: 8-grain Ni maps of 96 px,
@@ -102,7 +104,7 @@ def _intensity_system(
     model, geo, six = _model(
         problem, arrays, geometry, rotations, solved, processing, jacobians, compare, lattice
     )
-    e, s0 = (raw, model) if compare is None else (compare(raw), compare(model))
+    s0 = model if compare is None else compare(model)
     # Gain and offset of each pattern, then projected out of every column:
     # exactly their elimination (variable projection). The two basis
     # vectors, the constant and the centred model, are orthogonal: the
@@ -110,7 +112,6 @@ def _intensity_system(
     sc = s0 - s0.mean(axis=1, keepdims=True)
     norm = np.linalg.norm(sc, axis=1)
     unit = sc / norm[:, None]
-    ec = e - e.mean(axis=1, keepdims=True)
     gain = (unit * ec).sum(axis=1) / norm
     # Model minus data, fitted gain and offset
     residual = _project_out(e[:, None], unit, -np.ones(n))[..., 0]
@@ -118,6 +119,8 @@ def _intensity_system(
     if jacobians:
         jg = _project_out(geo, unit, gain)
         jr = _project_out(six[:, :3], unit, gain)
+    if not variances:
+        return residual, jg, jr, None
     # Shot noise follows the intensities before the high-pass: the fitted
     # model's (the filter is linear, so the gain is the same)
     fitted = gain[:, None] * (model - model.mean(axis=1, keepdims=True))

@@ -31,6 +31,7 @@ from kikuchipy_geomdic.calibration._crystal import (
 from kikuchipy_geomdic.calibration._points import _experimental, _select_points
 from kikuchipy_geomdic.calibration._processing import (
     _bands_divided_out,
+    _compared,
     _fit_lobe,
     _static_background,
     _with_mean_bands,
@@ -195,6 +196,18 @@ class _Problem:
         if not self.bands_put_back:
             return self.experimental
         return _with_mean_bands(self.experimental, self.background)
+
+    @cached_property
+    def compared_experimental(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The patterns (N, P) as float64, as the full field compares them
+        (with the crystal model less their blur, :func:`_compared`; else
+        the same array) and those centred: the same at every full-field
+        iteration, which made them again. Not to be written to."""
+        n = len(self.points)
+        raw = self.experimental.reshape(n, -1).astype(np.float64)
+        shape = tuple(self.experimental.shape[1:])
+        e = raw if self.crystal is None else _compared(raw, shape)
+        return raw, e, e - e.mean(axis=1, keepdims=True)
 
     def compare(
         self, geometry: MapGeometry, rotations: Rotation

@@ -305,19 +305,15 @@ class _Processing:
             d[block] = self._derivatives(d[block], *part)
         return x, d.reshape(n, d.shape[1], p)
 
-    def _patterns(self, x: np.ndarray) -> tuple[np.ndarray, tuple]:
+    def _patterns(self, x: np.ndarray, sd: np.ndarray | None = None) -> tuple[np.ndarray, tuple]:
         """The processed pattern planes of simulated ones *x* (N, 1, rows,
-        columns), and what their derivatives need: the standardised
-        pattern (float32), its standard deviation, the divisor of the
-        static background removal and, with a contrast and a high-pass,
-        the low-pass and the pattern divided by it (else None)."""
-        axes = (2, 3)
-        # In place on one copy where a step's input is not kept: the
-        # estimation passes 17 stacks through here, and their temporaries
-        # were most of its time
-        x = x - x.mean(axis=axes, keepdims=True)
-        sd = np.sqrt((x**2).mean(axis=axes, keepdims=True))
-        x /= sd
+        columns; standardised already if their standard deviations *sd*
+        are given, :func:`_standardised`, and not written to), and what
+        their derivatives need: the standardised pattern (float32), its
+        standard deviation, the divisor of the static background removal
+        and, with a contrast and a high-pass, the low-pass and the pattern
+        divided by it (else None)."""
+        x, sd = _standardised(x) if sd is None else (x, sd)
         xs = x.astype(np.float32, copy=False)
         lobe = 1.0 if self.lobe is None else self.lobe.astype(x.dtype)
         c = self.contrast
@@ -383,8 +379,17 @@ class _Processing:
         return d
 
 
-def _processed_ncc(e, s0, processing):
-    return float((ori.standardise(processing(s0)[0]) * e).mean())
+def _standardised(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pattern planes *x* (N, 1, rows, columns) less their means over
+    their standard deviations, and those (N, 1, 1, 1)."""
+    axes = (2, 3)
+    # In place on one copy where a step's input is not kept: the
+    # estimation passes 17 stacks through here, and their temporaries
+    # were most of its time
+    x = x - x.mean(axis=axes, keepdims=True)
+    sd = np.sqrt((x**2).mean(axis=axes, keepdims=True))
+    x /= sd
+    return x, sd
 
 
 def _estimate_processing(problem, arrays, geometry, rotations) -> _Processing:
@@ -406,27 +411,43 @@ def _estimate_processing(problem, arrays, geometry, rotations) -> _Processing:
     # every k-th pattern; the ghost and the contrast on all of them (on 50
     # of 121 the map's mean pattern was not found)
     few = np.unique(np.linspace(0, n - 1, min(n, ESTIMATION_PATTERNS)).astype(int))
+    # Each subset's patterns and simulations (standardised) made once,
+    # each model's correlation with them computed once: a step tries
+    # again the model an earlier one chose
+    subsets = {
+        "few": (e[few], *_standardised(s0[few].reshape((-1, 1) + shape))),
+        "all": (e, *_standardised(s0.reshape((-1, 1) + shape))),
+    }
+    nccs = {}
 
-    def best(candidates, pick=slice(None)):
-        return max(candidates, key=lambda proc: _processed_ncc(e[pick], s0[pick], proc))
+    def ncc(proc, pick):
+        key = (proc, id(proc.lobe), pick)
+        if key not in nccs:
+            e_pick, x, sd = subsets[pick]
+            x = proc._patterns(x, sd)[0].reshape(len(x), -1)
+            nccs[key] = float((ori.standardise(x) * e_pick).mean())
+        return nccs[key]
+
+    def best(candidates, pick="all"):
+        return max(candidates, key=lambda proc: ncc(proc, pick))
 
     proc = best(
         (_Processing(shape, 2 * PSF_STEP, h * shape[1], lobe=problem.lobe) for h in HIGHPASS_GRID),
-        few,
+        "few",
     )
     sigmas = np.arange(0.0, PSF_MAX + 1e-9, PSF_STEP)
-    ncc = []
+    scores = []
     for sg in sigmas:
-        ncc.append(_processed_ncc(e[few], s0[few], replace(proc, psf=sg)))
+        scores.append(ncc(replace(proc, psf=sg), "few"))
         # Past the peak twice in a row: the rest of the grid cannot win
-        if len(ncc) > 2 and ncc[-1] < ncc[-2] < max(ncc):
+        if len(scores) > 2 and scores[-1] < scores[-2] < max(scores):
             break
-    sigmas = sigmas[: len(ncc)]
-    k = int(np.argmax(ncc))
+    sigmas = sigmas[: len(scores)]
+    k = int(np.argmax(scores))
     psf = float(sigmas[k])
     if 0 < k < len(sigmas) - 1:
         # Vertex of the parabola through the best and its neighbours
-        a, b, c = ncc[k - 1], ncc[k], ncc[k + 1]
+        a, b, c = scores[k - 1], scores[k], scores[k + 1]
         den = a - 2 * b + c
         if den < 0:
             psf = float(sigmas[k] + PSF_STEP * 0.5 * (a - c) / den)
@@ -443,7 +464,7 @@ def _estimate_processing(problem, arrays, geometry, rotations) -> _Processing:
                 for c in CONTRAST_GRID[1:]
                 for h in HIGHPASS_GRID[1:]
             ),
-            few,
+            "few",
         )
         proc = best((proc, left_in))
     if proc.lobe is not None and proc.contrast and problem.background is not None:

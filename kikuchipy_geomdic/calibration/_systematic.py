@@ -75,6 +75,7 @@ def _region_errors(
     region: np.ndarray,
     geometry_prior: np.ndarray | None = None,
     geometry_offsets: np.ndarray | None = None,
+    normal: JointSystem | None = None,
 ) -> np.ndarray:
     """Systematic standard errors (K,) of the geometry from the spread of
     its solutions on the detector's :data:`REGIONS`.
@@ -90,7 +91,9 @@ def _region_errors(
     ``C_r - C_0``; the excess, ``e = mean_r((d_r - d_0)^2 - (C_r - C_0))``,
     is the regions' own biases' scatter, and the whole detector's bias,
     their mean, has the systematic variance ``max(0, e) / (R - 1)`` per
-    parameter for *R* regions.
+    parameter for *R* regions. *normal*: the whole detector's normal
+    equations if they were built (:meth:`JointSystem.build` of these
+    arguments), not built again.
     """
     kw = dict(
         prior=prior,
@@ -99,7 +102,10 @@ def _region_errors(
         geometry_prior=geometry_prior,
         geometry_offsets=geometry_offsets,
     )
-    all_ = solve_joint(jg, jr, residual, weights, **kw)
+    if normal is None:
+        all_ = solve_joint(jg, jr, residual, weights, **kw)
+    else:
+        all_ = normal.solve(residual, offsets, geometry_offsets=geometry_offsets)
     excess = []
     for r in range(REGIONS[0] * REGIONS[1]):
         # The region's own pixels: the others' weights would be zero, and

@@ -57,7 +57,10 @@ def standardise(a: np.ndarray) -> np.ndarray:
     axis (rows of zeros stay zero): NCC is then a mean of products."""
     a = a - a.mean(axis=-1, keepdims=True)
     sd = a.std(axis=-1, keepdims=True)
-    return a / np.where(sd > 0, sd, 1.0)
+    # In place on the centred copy: a (N, M, P) stack of candidates' is
+    # 70 MB, and one more was an eighth of the time
+    a /= np.where(sd > 0, sd, 1.0)
+    return a
 
 
 def compare_variants(

@@ -167,6 +167,26 @@ class TestJoint:
         expected = u.model_covariance + (v * np.clip(mu, 0, None)) @ v.T
         np.testing.assert_allclose(u.covariance, expected, rtol=1e-8, atol=1e-15)
 
+    @pytest.mark.parametrize("common", [False, True])
+    def test_columns_are_the_system_built_from_them(self, common):
+        # The full field cuts the free parameters' system from the whole
+        # one: every block the same to the last bit as built anew
+        jg, jr, b, w = self._system(n=8, m=40, k=4, seed=8)
+        sd = np.array([np.inf, np.inf, np.inf, 0.5])
+        whole = JointSystem.build(jg, jr, w, 0.3, common=common, geometry_prior=sd)
+        cols = [0, 3]
+        cut = whole.columns(cols, sd[cols])
+        anew = JointSystem.build(jg[..., cols], jr, w, 0.3, common=common, geometry_prior=sd[cols])
+        for name in ("js", "c", "bb", "a0", "a_inv", "a_inv_b", "s_pattern", "full", "mu", "v"):
+            assert np.array_equal(getattr(cut, name), getattr(anew, name)), name
+        assert (cut.k, cut.n_rot) == (anew.k, anew.n_rot)
+        off = np.random.default_rng(9).normal(size=(8, 3)) * 0.05
+        u, v = cut.solve(b, off), anew.solve(b, off)
+        assert np.array_equal(u.delta, v.delta) and np.array_equal(u.covariance, v.covariance)
+        # No prior on the geometry: that of build's default
+        plain = JointSystem.build(jg[..., [1, 2]], jr, w, 0.3, common=common)
+        assert np.array_equal(whole.columns([1, 2]).mu, plain.mu)
+
     def test_common_rotation_pinned_only_by_prior(self):
         # A geometry column that equals a rotation common to every pattern
         # is undetermined without a prior and determined with one
