@@ -81,3 +81,43 @@ def test_free_model_full_field_follows_a_poorly_determined_dic_stage():
         assert abs(err) <= 1.5e-3, (name, err)
         assert abs(err) <= 3 * res.standard_errors[name], (name, err, res.standard_errors[name])
     assert set(res.adequacy["systematic"]) >= {"pcx", "pcy", "pcz"}
+
+
+def test_holding_an_angle_leaves_a_fitted_lattice_free():
+    """Putting a held angle back keeps the lattice's stretch free: the PC's
+    covariance is the one marginal over the stretch (not the one given
+    it), the stretch takes its step, and the PC's regression on it is
+    returned for its systematic part to carry."""
+    from orix.quaternion import Rotation
+
+    from kikuchipy_geomdic.calibration._full_field import _hold
+    from kikuchipy_geomdic.calibration._intensity import _System
+    from kikuchipy_geomdic.calibration.solve import JointSystem, solve_joint
+    from kikuchipy_geomdic.validation.synthetic import default_geometry
+
+    rng = np.random.default_rng(2)
+    solved, n, p = ("pcx", "pcy", "pcz", "tilt"), 12, 200
+    jg = rng.normal(size=(n, p, 5))
+    jg[..., 4] = 0.9 * jg[..., 2] + 0.3 * jg[..., 4]  # the stretch shares pcz's valley
+    jr, w = rng.normal(size=(n, p, 3)), np.ones((n, p))
+    residual = rng.normal(size=(n, p))
+    prior, offsets = np.r_[np.full(4, np.inf), 1.0], np.zeros(5)
+    kw = dict(prior=1e-3, offsets=np.zeros((n, 3)), geometry_prior=prior)
+    normal = JointSystem.build(jg, jr, w, 1e-3, geometry_prior=prior)
+    geometry = default_geometry()
+    system = _System(
+        geometry, Rotation.identity((n,)), residual, jg, jr, w, np.zeros((n, 3)), False,
+        normal, prior, offsets,
+    )  # fmt: skip
+    cov = np.diag(np.full(4, 1e-8))
+    _, _, out, lattice = _hold(system, ("tilt",), geometry, solved, {}, cov)
+    free = solve_joint(
+        jg[..., [0, 1, 2, 4]], jr, residual, w, **{**kw, "geometry_prior": prior[[0, 1, 2, 4]]}
+    )
+    given = solve_joint(jg[..., :3], jr, residual, w, prior=1e-3, offsets=np.zeros((n, 3)))
+    assert np.allclose(out[:3, :3], free.covariance[:3, :3])
+    assert out[2, 2] > 2 * given.covariance[2, 2]
+    step, se, slope = lattice
+    assert np.isclose(step, free.delta[3]) and np.isclose(se, np.sqrt(free.covariance[3, 3]))
+    assert np.allclose(slope[:3], free.covariance[:3, 3] / free.covariance[3, 3])
+    assert slope[3] == 0 and abs(slope[2]) > 0.5
