@@ -269,7 +269,8 @@ def _full_field(
         # it left the starts' (on a BaTiO3 domain map from users' starts,
         # a random variant per point: the PC ended 4.7e-3 off at 18
         # standard errors; within two with the variants chosen here).
-        # Where it ended on a choice that changed nothing, they are
+        # Where it ended on a choice that changed nothing, they are so
+        # already
         state = replace(state, rotations=problem.best_variants(start, state.rotations))
     processing = _estimate_processing(problem, problem.arrays, start, state.rotations)
     history = []

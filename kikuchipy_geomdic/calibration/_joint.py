@@ -253,9 +253,19 @@ class JointSystem:
                    full, mu, v, keep, n_rot, k, rtol)  # fmt: skip
 
     def products(self, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The weighted products ``J^T W b`` of a residual *b* (N, M) with
-        the geometry's columns (N, K, a common rotation's after) and with
-        each pattern's rotation's (N, 3)."""
+        """The weighted products ``J^T W b`` of a residual with the columns.
+
+        Parameters
+        ----------
+        b
+            Residual (N, M) of the system's patterns.
+
+        Returns
+        -------
+        geometry, rotation
+            The products with the geometry's columns (N, K, a common
+            rotation's after them) and with each pattern's rotation's (N, 3).
+        """
         x = (self.js @ (self.sw * b)[..., None])[..., 0]
         return x[:, :-3], x[:, -3:]
 

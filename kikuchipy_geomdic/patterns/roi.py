@@ -188,9 +188,9 @@ def _tracking_labels(shape, rois, binning, tracked_shape, margin):
     """ROI of each tracking pixel, -1 within *margin* of the edge.
 
     A tracking pixel belongs to the ROI of its full-resolution centre.
-    Returns the label image (read-only) and the pixel box of each ROI, a
-    tuple. Cached: every pattern of a map has the same (built per pattern,
-    they were a tenth of the DIC measurement's cost).
+    Returns the label image (read-only). Cached: every pattern of a map has
+    the same (built per pattern, they were a tenth of the DIC
+    measurement's cost).
     """
     row_edges, col_edges = _edges(*_check_grid(shape, rois))
     lab = []
@@ -204,17 +204,8 @@ def _tracking_labels(shape, rois, binning, tracked_shape, margin):
     labels = np.where(
         (rows[:, None] >= 0) & (cols[None, :] >= 0), rows[:, None] * rois[1] + cols[None, :], -1
     )
-    boxes = []
-    for j in range(rois[0]):
-        rr = np.flatnonzero(rows == j)
-        for k in range(rois[1]):
-            cc = np.flatnonzero(cols == k)
-            if rr.size and cc.size:
-                boxes.append((rr[0], rr[-1] + 1, cc[0], cc[-1] + 1))
-            else:
-                boxes.append(None)
     labels.flags.writeable = False
-    return labels, tuple(boxes)
+    return labels
 
 
 # --------------------------------------------------------------------- #

@@ -183,7 +183,7 @@ def pattern_vectors(
     a, b = _prepare(a, binning, o["smoothing"]), _prepare(b, binning, o["smoothing"])
     # Features closer than half a window to the edge are not used: their
     # LK window would reach outside the pattern
-    labels = _tracking_labels(shape, rois, binning, a.shape, window // 2)[0]
+    labels = _tracking_labels(shape, rois, binning, a.shape, window // 2)
     top = _max_levels(a.shape, window, o["levels"])
     if backend == "opencv":
         cv2 = _import_cv2()
