@@ -506,6 +506,7 @@ def test_domain_map_of_another_lattice_fits_its_c_over_a():
     lattice the PC is biased; fitted with it (the default tolerance), the
     PC is within 3e-4 and honest, and c/a within 3 standard errors of the
     data's. The calibration's own simulator's data: the lattice alone."""
+    from kikuchipy_geomdic.calibration._full_field import LATTICE_RESOLUTION
     from kikuchipy_geomdic.calibration.refinement import LATTICE_TOLERANCE
     from kikuchipy_geomdic.validation import master_patterns
 
@@ -524,5 +525,7 @@ def test_domain_map_of_another_lattice_fits_its_c_over_a():
     lat = res.lattice
     assert lat["determined"] and lat["tolerance"] == LATTICE_TOLERANCE
     assert abs(lat["stretch"] - 0.006) <= 3 * lat["stretch_se"], lat
+    # Never finer than a master pattern resolves the lattice
+    assert lat["stretch_se"] >= LATTICE_RESOLUTION, lat
     assert lat["c_over_a"] == pytest.approx(4.0365 * 1.006 / 3.9925, abs=3 * lat["c_over_a_se"])
     assert "c/a" in repr(res)
