@@ -201,15 +201,8 @@ def _full_field_stage(
         # stage's patterns determine with a free rotation each. The
         # crystal model's angles are never below the latter: the tie to one
         # parent, which a shared misfit can fit, determines them (a 2 mm
-        # domain map: the tilt 0.90 deg off at 0.09 deg without). On one
-        # crystal the DIC stage is the biased one where the two disagree
-        # (its simulations lack the bands the processing changed): raised
-        # to a third of its step, Ni crystals' pcx standard errors were
-        # 0.9-2.2e-3 for errors of 0.1-1.0e-3, the quadrants' spread with
-        # the prior covers those at RMS 0.75 (benchmarks page, section 8)
-        standard_errors = ff.standard_errors
-        if free_se is None:
-            standard_errors = _inflated(standard_errors, adequacy)
+        # domain map: the tilt 0.90 deg off at 0.09 deg without)
+        standard_errors = _inflated(ff.standard_errors, adequacy)
         if free_se is None:
             prior, parts = {k: v for k, v in statistical.items() if k in _PC}, ff.grains
         else:

@@ -292,9 +292,8 @@ def refine_geometry_dic(
         background removal, chosen from the patterns); rotations
         eliminated by the same Schur complement; standard errors
         cluster-robust over the patterns, checked against the DIC stage
-        (:attr:`GeometryRefinementResult.adequacy`: a warning, and on a
-        polycrystal the standard errors raised, where the two disagree by
-        more than
+        (:attr:`GeometryRefinementResult.adequacy`: raised, with a
+        warning, where the two disagree by more than
         :data:`~kikuchipy_geomdic.calibration.uncertainty.ADEQUACY_LIMIT`
         combined standard errors). Default: True for the joint solver,
         False for the paper's. The DIC stage then ends once the RMS

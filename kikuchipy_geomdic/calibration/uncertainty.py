@@ -246,14 +246,10 @@ def _adequacy(
             f"{abs(z[worst]):.1f} combined standard errors, {worst})"
         )
     else:
-        covered = (
-            "the full field's standard errors hold its quadrants' spread"
-            if problem.crystal is not None
-            else "the full field's standard errors are raised to cover the disagreement"
-        )
         verdict = (
             f"full field and DIC stage disagree ({worst} {abs(z[worst]):.1f} combined "
-            f"standard errors apart): a misfit all patterns share; {covered}"
+            "standard errors apart): a misfit all patterns share; the full field's "
+            "standard errors are raised to cover the disagreement"
         )
     return {"z": z, "dic_step": dic_step, "consistent": consistent, "verdict": verdict}
 

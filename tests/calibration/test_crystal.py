@@ -250,35 +250,6 @@ def test_crystal_model_errors_raised_towards_free_rotations(monkeypatch):
     assert res.standard_errors["tilt"] >= 0.5 or not np.isfinite(res.standard_errors["tilt"])
 
 
-def test_one_crystal_disagreement_is_reported_not_inflated(monkeypatch):
-    """On one crystal the DIC stage is the biased one where it and the
-    full field disagree (its simulations lack what the processing did to
-    the bands): the disagreement is reported, but the full field's
-    standard errors stay its own with the quadrants' prior, not a third
-    of the DIC stage's step (Ni crystals: pcx 0.9-2.2e-3 for errors of
-    0.1-1.0e-3 when they were)."""
-    from dataclasses import replace
-
-    from kikuchipy_geomdic.calibration import _full_field as stage
-
-    real = stage._full_field
-
-    def biased(*args, **kwargs):
-        ff = real(*args, **kwargs)
-        return replace(ff, geometry=ff.geometry.updated({"pcz": 2e-3}))
-
-    monkeypatch.setattr(stage, "_full_field", biased)
-    sm = synthetic.synthetic_map("Si", (5, 5), "single", shape=(60, 60), seed=1)
-    with pytest.warns(UserWarning, match="full field and DIC stage disagree"):
-        res = sm.signal.refine_geometry_dic(
-            *sm.start_inputs[1:], parameters=["pcx", "pcy", "pcz"],
-            orientation_model="crystal", full_field=True, show_progressbar=False,
-        )  # fmt: skip
-    assert not res.adequacy["consistent"]
-    assert "quadrants' spread" in res.adequacy["verdict"]
-    assert res.standard_errors["pcz"] < abs(res.adequacy["dic_step"]["pcz"]) / 3
-
-
 def _domain_map(pc, seed, perturbation, static=False, **kwargs):
     """A 13 x 13 BaTiO3 domain map as a camera and a user make it (the
     envelope's base cell at *pc*), from users' starts; *static*: the
