@@ -106,15 +106,16 @@ class TwoPhaseMap:
     truth, the start (orientations 0.3 deg off, PC about 2 % off) and both
     phases' :class:`~kikuchipy_geomdic.validation.synthetic.SyntheticMap`."""
 
-    def __init__(self, nav=(6, 6), shape=(60, 60), seed=0, dose=200):
+    def __init__(self, nav=(6, 6), shape=(60, 60), seed=0, dose=200, names=("Ni", "Si")):
         import numpy as np
         from orix.crystal_map import CrystalMap, PhaseList
         from orix.quaternion import Rotation
 
         from kikuchipy_geomdic.validation import synthetic
 
-        self.ni = synthetic.synthetic_map("Ni", nav, shape=shape, seed=seed, dose=dose)
-        self.si = synthetic.synthetic_map("Si", nav, shape=shape, seed=seed + 1, dose=dose)
+        # ni and si: the first and second phase (Ni and Si unless *names* say)
+        self.ni = synthetic.synthetic_map(names[0], nav, shape=shape, seed=seed, dose=dose)
+        self.si = synthetic.synthetic_map(names[1], nav, shape=shape, seed=seed + 1, dose=dose)
         self.is_si = (np.indices(nav)[1] >= nav[1] // 2).ravel()
         mask = self.is_si.reshape(nav + (1, 1))
         self.signal = self.ni.signal.deepcopy()

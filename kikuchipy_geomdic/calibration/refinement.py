@@ -65,7 +65,7 @@ from kikuchipy_geomdic.geometry import (
     solved_parameters,
 )
 from kikuchipy_geomdic.geometry.maps import navigation_shape
-from kikuchipy_geomdic.indexing.phases_to_refine import unrefined_phases
+from kikuchipy_geomdic.indexing.phases_to_refine import check_energy, unrefined_phases
 
 __all__ = [
     "refine_geometry_dic",
@@ -384,6 +384,7 @@ def refine_geometry_dic(
         signal, xmap, detector, master_pattern, phase, nav, pseudo_symmetry_ops, energy
     )
     _left_out_note(xmap, phases)
+    energy = check_energy(energy)
     # Left at its default, the full field runs only where the DIC stage
     # has brought the geometry into its basin; True forces it
     guarded = full_field is None

@@ -263,7 +263,9 @@ def reindex(
         show_progressbar=_show_progressbar(show_progressbar),
     )  # fmt: skip
     stage = _decide if decide_phase else _reindex_phases
-    return stage(signal, xmap, detector, phases, float(check_energy(energy)), todo, options)
+    # One number as given (kikuchipy's route takes it as it is), a list as one
+    energy = check_energy(energy) if np.ndim(energy) else energy
+    return stage(signal, xmap, detector, phases, energy, todo, options)
 
 
 def _points_to_refine(

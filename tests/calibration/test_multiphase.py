@@ -5,6 +5,7 @@ refused with nothing mutated."""
 
 import numpy as np
 import pytest
+from conftest import TwoPhaseMap
 from orix.crystal_map import CrystalMap, Phase, PhaseList
 from orix.quaternion import Rotation
 
@@ -17,6 +18,7 @@ from kikuchipy_geomdic.indexing.orientation import (
     project_arrays,
 )
 from kikuchipy_geomdic.indexing.phases_to_refine import phases_to_refine
+from kikuchipy_geomdic.indexing.variants import variant_operators
 from kikuchipy_geomdic.validation import master_patterns
 
 PC = ("pcx", "pcy", "pcz")
@@ -151,3 +153,27 @@ def test_one_crystal_model_is_refused_for_several_phases(two_phase):
             t.signal, t.start_xmap, t.start_detector, t.master_patterns, 20,
             orientation_model="crystal", **OPTIONS,
         )  # fmt: skip
+
+
+def test_pseudo_symmetry_operators_act_on_their_own_phase_only():
+    # Ni (no operators) and BaTiO3 (its variants); three BaTiO3 points
+    # started in another variant
+    t = TwoPhaseMap(names=("Ni", "BaTiO3"))
+    ops = variant_operators()[1:]
+    q = t.start_xmap.rotations.data.reshape(-1, 4).copy()
+    moved = np.array([3, 4, 10])
+    q[moved] = ((~ops[0]) * Rotation(q[moved])).data
+    start = CrystalMap(
+        rotations=Rotation(q), phase_id=t.start_xmap.phase_id, x=t.start_xmap.x,
+        y=t.start_xmap.y, phase_list=t.start_xmap.phases, scan_unit="um",
+    )  # fmt: skip
+    res = refine_geometry_dic(
+        t.signal, start, t.start_detector, t.master_patterns, 20,
+        pseudo_symmetry_ops=[None, ops], **OPTIONS,
+    )  # fmt: skip
+    flat = np.ravel_multi_index(res.points.T, (6, 6))
+    index = res.xmap.prop["pseudo_symmetry_index"]
+    # Each moved point back in its own variant, no other point moved
+    np.testing.assert_array_equal(np.flatnonzero(index), np.flatnonzero(np.isin(flat, moved)))
+    assert res.points_per_phase == {"Ni": 18, "BaTiO3": 18}
+    assert np.abs(_pc_errors(res, t.geometry)).max() < 1e-4
