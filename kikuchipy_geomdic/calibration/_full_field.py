@@ -28,7 +28,6 @@ from kikuchipy_geomdic.calibration._progress import _Progress
 from kikuchipy_geomdic.calibration._systematic import (
     REGIONS,
     _grain_errors,
-    _grains,
     _quadrants,
     _region_errors,
     _with_prior,
@@ -333,7 +332,7 @@ def _full_field(
             system.normal,
             system.residual,
             system.offsets,
-            _grains(np.asarray(system.rotations.flatten().data), problem.grain_group),
+            problem.grains(np.asarray(system.rotations.flatten().data)),
         )
     elif system is not None:
         systematic = _region_errors(
