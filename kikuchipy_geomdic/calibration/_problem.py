@@ -128,8 +128,10 @@ class _Problem:
     def lattice_result(self, stretch: float, standard_error: float) -> dict[str, Any]:
         """What the calibration reports of the lattice fitted: the c axis'
         *stretch* (with its *standard_error*) against the phase's, the
-        c/a it makes and whether the map determines it (its standard
-        error below half the prior's, :attr:`lattice_tolerance`)."""
+        c/a it makes, whether the map determines it (its standard
+        error below half the prior's, :attr:`lattice_tolerance`) and, with
+        pseudo-symmetry operators, whether it still tells the variants
+        apart (c/a beyond 3 standard errors of the parent's 1)."""
         lat = self.phase.structure.lattice
         ratio = lat.c / lat.a
         return {
@@ -140,6 +142,10 @@ class _Problem:
             "phase_c_over_a": float(ratio),
             "tolerance": float(self.lattice_tolerance),
             "determined": bool(standard_error < 0.5 * self.lattice_tolerance),
+            "variants_apart": bool(
+                self.pseudo_symmetry_ops is None
+                or abs(ratio * stretch - 1) > 3 * ratio * standard_error
+            ),
         }
 
     @cached_property
