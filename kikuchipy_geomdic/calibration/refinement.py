@@ -326,7 +326,9 @@ def refine_geometry_dic(
         moves every band of every pattern alike and reads as a PC error
         (0.6 % of c/a: 2-3e-3 of PC). Where the map separates the two, the
         fit is the data's; where it cannot, the PC's standard errors carry
-        this tolerance. Reported in :attr:`GeometryRefinementResult.lattice`.
+        this tolerance. Reported in :attr:`GeometryRefinementResult.lattice`
+        (with pseudo-symmetry operators, a c/a fitted within 3 standard
+        errors of 1 is marked not converged: its variants look alike).
         0 holds the lattice at the CIF's; cubic crystals have no such
         freedom, and on a polycrystal each pattern's rotation absorbs most
         of it (the lattice is held there). Default :data:`LATTICE_TOLERANCE`.
