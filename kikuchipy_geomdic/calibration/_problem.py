@@ -56,6 +56,11 @@ from kikuchipy_geomdic.patterns import displacement as dsp
 #: %; kikuchipy's real 3 x 3 Ni map of three grains 67 %).
 ONE_CRYSTAL_NOTE = 0.7
 
+#: Simulations a problem keeps (:meth:`_Problem.simulate`): the next
+#: stage asks for the last ones again (the DIC stage for the start's, the
+#: full field's processing estimate for the DIC stage's last).
+SIMULATIONS_KEPT = 2
+
 #: Paper solver: smallest side (px) the patterns are binned down to for
 #: the orientation refinements inside the loop. Orientations refined from
 #: 60 px patterns were as precise (0.0025 deg) as from 120 px ones
@@ -90,6 +95,9 @@ class _Problem:
     lattice_tolerance: float = 0.0
     #: The crystal's c axis over the phase's, as simulated (:attr:`arrays`)
     stretch: float = 1.0
+    #: The last simulations (:meth:`simulate`) by their inputs, shared with
+    #: the problems replaced from this one (the inputs are the key)
+    simulations: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def lattice_prior(self) -> float | None:
@@ -166,12 +174,31 @@ class _Problem:
         rotations: Rotation,
         arrays: ori.MasterPatternArrays | None = None,
     ) -> np.ndarray:
-        """Patterns (N, rows, columns), float64, as kikuchipy's
+        """Patterns (N, rows, columns), float64, read-only, as kikuchipy's
         ``get_patterns`` projects them, by this package's compiled
         kernel (a quarter of kikuchipy's time on 100 patterns), from
-        *arrays* (default :attr:`arrays`)."""
+        *arrays* (default :attr:`arrays`). The last
+        :data:`SIMULATIONS_KEPT` are kept by their inputs and returned
+        again for the same ones."""
         det = geometry.detector(self.points)
-        return ori.project_patterns(rotations, det, self.arrays if arrays is None else arrays)
+        arrays = self.arrays if arrays is None else arrays
+        q = np.ascontiguousarray(Rotation(rotations).flatten().data, dtype=np.float64)
+        pcs, om = ori.detector_pcs(det, len(q)), ori.detector_matrix(det)
+        # The master pattern's arrays by their memory, which the kept
+        # simulation's reference holds: an id could be another's later
+        mp = tuple(
+            (a.__array_interface__["data"][0], a.shape, a.strides, a.dtype.str)
+            for a in (arrays.upper, arrays.lower)
+        )
+        key = (q.tobytes(), pcs.tobytes(), om.tobytes(), tuple(det.shape), mp, arrays.stretch)
+        if key in self.simulations:
+            return self.simulations[key][1]
+        sim = ori.project_arrays(q, pcs, om, arrays, det.shape)
+        sim.setflags(write=False)
+        while len(self.simulations) >= SIMULATIONS_KEPT:
+            del self.simulations[next(iter(self.simulations))]
+        self.simulations[key] = (arrays, sim)
+        return sim
 
     @property
     def bands_put_back(self) -> bool:
