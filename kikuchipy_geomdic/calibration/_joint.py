@@ -123,7 +123,8 @@ class JointSystem:
 
     #: Every column times the square root of its weight, (N, K + 3, M):
     #: the geometry's (with a common rotation's after), then the pattern's
-    #: rotation's; the weighted products are :meth:`products`
+    #: rotation's; the weighted products are :meth:`products`. Of a system
+    #: cut by :meth:`columns`, its whole system's stack, *rows* its own
     js: np.ndarray
     sw: np.ndarray  # the weights' square roots (N, M)
     w: np.ndarray
@@ -142,6 +143,7 @@ class JointSystem:
     n_rot: int
     k: int  # geometry parameters; a common rotation's three follow
     rtol: float = 1e-10
+    rows: np.ndarray | None = None  # the rows of *js* that are this system's; None: all
 
     @classmethod
     def build(
@@ -211,23 +213,40 @@ class JointSystem:
         bit, from this one's weighted stack (the full field built a
         second system, with parameters held, from its Jacobians anew)."""
         index = np.asarray(index, dtype=np.int64)
-        kg = self.js.shape[1] - 3
-        # take: a fancy index made the copy twice as slowly
-        js = np.take(self.js, np.concatenate([index, np.arange(self.k, kg + 3)]), axis=1)
+        kg = self.c.shape[1]
+        rows = np.concatenate([index, np.arange(self.k, kg + 3)])
+        # Pattern by pattern, each one's rows copied (0.7 MB at 120 px):
+        # the same products (BLAS syrk) as of the stack cut, which the
+        # normal equations' blocks, cut from this system's, are not to the
+        # last bit (OpenBLAS' kernels depend on the matrix's size). The
+        # stack copied whole cost more than the rest of the cut system (55
+        # MB at 100 patterns of 120 px, new memory each time)
+        rows = rows if self.rows is None else self.rows[rows]
+        normal = np.empty((len(self.js), len(rows), len(rows)))
+        for i, pattern in enumerate(self.js):
+            cut = pattern[rows]
+            normal[i] = cut @ cut.T
         sd = np.full(len(index), np.inf) if geometry_prior is None else geometry_prior
         precision = 1.0 / np.asarray(sd, dtype=np.float64) ** 2
         k = len(index)
-        return self._from_stack(
-            js, self.sw, self.w, self.prior_precision, k, kg - self.k + k, precision, self.rtol
-        )
+        return self._from_normal(
+            normal, self.js, self.sw, self.w, self.prior_precision, k, kg - self.k + k,
+            precision, self.rtol, rows,
+        )  # fmt: skip
 
     @classmethod
     def _from_stack(cls, js, sw, w, p, k, kg, precision, rtol) -> JointSystem:
         # The normal equations of the weighted stack *js* (N, kg + 3, M):
         # *k* geometry columns, a common rotation's after them up to *kg*
+        normal = js @ np.swapaxes(js, 1, 2)
+        return cls._from_normal(normal, js, sw, w, p, k, kg, precision, rtol)
+
+    @classmethod
+    def _from_normal(cls, normal, js, sw, w, p, k, kg, precision, rtol, rows=None):
+        # The system of the normal equations *normal* (N, kg + 3, kg + 3)
+        # of the stack *js* (its *rows*, if given)
         if kg > k:
             precision = np.concatenate([precision, np.zeros(3)])
-        normal = js @ np.swapaxes(js, 1, 2)
         a0 = normal[:, kg:, kg:]
         a = a0 + p * np.eye(3)
         bb = normal[:, kg:, :kg]
@@ -250,7 +269,12 @@ class JointSystem:
         n_rot = int(np.linalg.matrix_rank(a, hermitian=True).sum())
         # In the fields' order
         return cls(js, sw, w, p, a_inv, a_inv_b, bb, c, a0, s_pattern, precision,
-                   full, mu, v, keep, n_rot, k, rtol)  # fmt: skip
+                   full, mu, v, keep, n_rot, k, rtol, rows)  # fmt: skip
+
+    def stack(self) -> np.ndarray:
+        """This system's weighted columns (N, K + 3, M), as :attr:`js` of
+        a system built from them."""
+        return self.js if self.rows is None else np.take(self.js, self.rows, axis=1)
 
     def products(self, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The weighted products ``J^T W b`` of a residual with the columns.
@@ -266,7 +290,13 @@ class JointSystem:
             The products with the geometry's columns (N, K, a common
             rotation's after them) and with each pattern's rotation's (N, 3).
         """
-        x = (self.js @ (self.sw * b)[..., None])[..., 0]
+        wb = self.sw * b
+        if self.rows is None:
+            x = (self.js @ wb[..., None])[..., 0]
+        else:
+            # Pattern by pattern, each one's rows copied: the same product
+            # (BLAS gemv) as of the stack cut, without copying it whole
+            x = np.stack([self.js[i, self.rows] @ wb[i] for i in range(len(wb))])
         return x[:, :-3], x[:, -3:]
 
     def solve(
@@ -331,9 +361,10 @@ class JointSystem:
         if not chi2_after > 1e-6 * chi2:
             # Expanded, a chi2 that nearly vanishes is lost to round-off
             step = np.concatenate([np.broadcast_to(delta, (n, delta.size)), dw], axis=1)
-            wr_after = self.sw * b + (step[:, None, :] @ self.js)[:, 0]
+            js = self.stack()
+            wr_after = self.sw * b + (step[:, None, :] @ js)[:, 0]
             chi2_after = float((wr_after**2).sum())
-            scores = (self.js @ wr_after[..., None])[:, : delta.size, 0]
+            scores = (js @ wr_after[..., None])[:, : delta.size, 0]
         n_obs = int((w > 0).sum())
         dof = max(n_obs - self.n_rot - int(keep.sum()), 1)
         factor = chi2_after / dof

@@ -47,6 +47,11 @@ from kikuchipy_geomdic.indexing.reindex import refine_orientations
 from kikuchipy_geomdic.indexing.variants import _proper_rotations, _variant_table
 from kikuchipy_geomdic.patterns import displacement as dsp
 
+#: Simulations a problem keeps (:meth:`_Problem.simulate`): the next
+#: stage asks for the last ones again (the DIC stage for the start's, the
+#: full field's processing estimate for the DIC stage's last).
+SIMULATIONS_KEPT = 2
+
 #: Paper solver: smallest side (px) the patterns are binned down to for
 #: the orientation refinements inside the loop. Orientations refined from
 #: 60 px patterns were as precise (0.0025 deg) as from 120 px ones
@@ -86,6 +91,10 @@ class _Problem:
     phases: tuple = ()
     #: Index into :attr:`phases` of each point's phase (N,)
     point_phase: np.ndarray | None = field(default=None, repr=False)
+
+    #: The last simulations (:meth:`simulate`) by their inputs, shared with
+    #: the problems replaced from this one (the inputs are the key)
+    simulations: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def multi_phase(self) -> bool:
@@ -193,12 +202,35 @@ class _Problem:
         rotations: Rotation,
         arrays: ori.MasterPatternArrays | None = None,
     ) -> np.ndarray:
-        """Patterns (N, rows, columns), float64, as kikuchipy's
+        """Patterns (N, rows, columns), float64, read-only, as kikuchipy's
         ``get_patterns`` projects them, by this package's compiled
         kernel (a quarter of kikuchipy's time on 100 patterns), from
-        *arrays* (default :attr:`arrays`)."""
+        *arrays* (default :attr:`arrays`). The last
+        :data:`SIMULATIONS_KEPT` are kept by their inputs and returned
+        again for the same ones."""
         det = geometry.detector(self.points)
-        return ori.project_patterns(rotations, det, self.arrays if arrays is None else arrays)
+        arrays = self.arrays if arrays is None else arrays
+        q = np.ascontiguousarray(Rotation(rotations).flatten().data, dtype=np.float64)
+        pcs, om = ori.detector_pcs(det, len(q)), ori.detector_matrix(det)
+        # The master patterns' arrays by their memory, which the kept
+        # simulation's reference holds: an id could be another's later
+        several = isinstance(arrays, PhaseArrays)
+        parts = arrays.phases if several else (arrays,)
+        mp = tuple(
+            (a.__array_interface__["data"][0], a.shape, a.strides, a.dtype.str, p.stretch)
+            for p in parts
+            for a in (p.upper, p.lower)
+        )
+        labels = arrays.labels.tobytes() if several else b""
+        key = (q.tobytes(), pcs.tobytes(), om.tobytes(), tuple(det.shape), mp, labels)
+        if key in self.simulations:
+            return self.simulations[key][1]
+        sim = ori.project_arrays(q, pcs, om, arrays, det.shape)
+        sim.setflags(write=False)
+        while len(self.simulations) >= SIMULATIONS_KEPT:
+            del self.simulations[next(iter(self.simulations))]
+        self.simulations[key] = (arrays, sim)
+        return sim
 
     @property
     def bands_put_back(self) -> bool:

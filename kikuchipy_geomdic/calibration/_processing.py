@@ -405,8 +405,7 @@ def _estimate_processing(problem, arrays, geometry, rotations) -> _Processing:
     # decimal, float32 rounds in the seventh, and the passes over the
     # patterns were most of the choice's cost
     e = ori.standardise(problem.experimental.reshape(n, -1).astype(np.float32))
-    s0 = ori.project_patterns(rotations, geometry.detector(problem.points), arrays)
-    s0 = s0.reshape(n, -1).astype(np.float32)
+    s0 = problem.simulate(geometry, rotations, arrays).reshape(n, -1).astype(np.float32)
     # The high-pass and the point spread, properties of each pattern, on
     # every k-th pattern; the ghost and the contrast on all of them (on 50
     # of 121 the map's mean pattern was not found)

@@ -177,12 +177,19 @@ class TestJoint:
         cols = [0, 3]
         cut = whole.columns(cols, sd[cols])
         anew = JointSystem.build(jg[..., cols], jr, w, 0.3, common=common, geometry_prior=sd[cols])
-        for name in ("js", "c", "bb", "a0", "a_inv", "a_inv_b", "s_pattern", "full", "mu", "v"):
+        for name in ("c", "bb", "a0", "a_inv", "a_inv_b", "s_pattern", "full", "mu", "v"):
             assert np.array_equal(getattr(cut, name), getattr(anew, name)), name
+        assert np.array_equal(cut.stack(), anew.js)
         assert (cut.k, cut.n_rot) == (anew.k, anew.n_rot)
         off = np.random.default_rng(9).normal(size=(8, 3)) * 0.05
+        assert all(map(np.array_equal, cut.products(b), anew.products(b)))
         u, v = cut.solve(b, off), anew.solve(b, off)
         assert np.array_equal(u.delta, v.delta) and np.array_equal(u.covariance, v.covariance)
+        # Cut twice, as the full field holds parameters in a cut system
+        twice = cut.columns([1], sd[[3]])
+        once = JointSystem.build(jg[..., [3]], jr, w, 0.3, common=common, geometry_prior=sd[[3]])
+        assert np.array_equal(twice.stack(), once.js) and np.array_equal(twice.c, once.c)
+        assert all(map(np.array_equal, twice.products(b), once.products(b)))
         # No prior on the geometry: that of build's default
         plain = JointSystem.build(jg[..., [1, 2]], jr, w, 0.3, common=common)
         assert np.array_equal(whole.columns([1, 2]).mu, plain.mu)
