@@ -140,9 +140,11 @@ class _Problem:
         c/a it makes, whether the map determines it (its standard
         error below half the prior's, :attr:`lattice_tolerance`) and, with
         pseudo-symmetry operators, whether it still tells the variants
-        apart (c/a beyond 3 standard errors of the parent's 1)."""
+        apart (c/a beyond 3 standard errors of the parent's 1, or held
+        near the CIF's by the prior where the map does not determine it)."""
         lat = self.phase.structure.lattice
         ratio = lat.c / lat.a
+        determined = bool(standard_error < 0.5 * self.lattice_tolerance)
         return {
             "stretch": float(stretch - 1),
             "stretch_se": float(standard_error),
@@ -150,9 +152,10 @@ class _Problem:
             "c_over_a_se": float(ratio * standard_error),
             "phase_c_over_a": float(ratio),
             "tolerance": float(self.lattice_tolerance),
-            "determined": bool(standard_error < 0.5 * self.lattice_tolerance),
+            "determined": determined,
             "variants_apart": bool(
                 self.pseudo_symmetry_ops is None
+                or not determined
                 or abs(ratio * stretch - 1) > 3 * ratio * standard_error
             ),
         }

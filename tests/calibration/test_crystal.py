@@ -239,6 +239,8 @@ def test_lattice_near_cubic_says_the_variants_are_alike(monkeypatch):
     assert not _Problem.lattice_result(ops, cubic * 1.002, 7e-4)["variants_apart"]
     assert _Problem.lattice_result(ops, cubic * 1.0025, 7e-4)["variants_apart"]
     assert _Problem.lattice_result(ops, 1.0, 5e-4)["variants_apart"]
+    # Not determined by the map (one variant): the prior holds it apart
+    assert _Problem.lattice_result(ops, cubic, 8e-3)["variants_apart"]
 
     real = _Problem.lattice_result
 

@@ -730,7 +730,12 @@ def test_reseeding_never_lowers_a_score(user_stripes):
     local = reindex(*args, reseed=False, **kw)
     seeded = reindex(*args, **kw)
     assert seeded.reseeded.sum() >= 5  # the seeds did something: the test can fail
-    assert (seeded.scores >= local.scores).all()
+    # Within the kernels' round-off (test_reindex_on_cluster_equals_serial):
+    # a point refined in both runs from the same start can differ by it
+    # where one run's kernels were compiled in-process, the other's cached
+    bound = 3 * sm.signal.axes_manager.signal_size * np.finfo(float).eps
+    lower = local.scores - seeded.scores
+    assert (lower <= bound * np.abs(local.scores)).all(), lower.max()
     changed = seeded.reseeded.astype(bool)
     assert (seeded.scores[changed] > local.scores[changed]).all()
     np.testing.assert_array_equal(seeded.variant[~changed], local.variant[~changed])
