@@ -24,6 +24,7 @@ import kikuchipy_geomdic as kg
 from kikuchipy_geomdic.calibration.refinement import calibration_points
 from kikuchipy_geomdic.calibration.uncertainty import UNDETERMINED_RANGE
 from kikuchipy_geomdic.geometry import rotation_vectors
+from kikuchipy_geomdic.indexing.orientation import project_patterns
 from kikuchipy_geomdic.indexing.variants import variant_operators
 from kikuchipy_geomdic.validation import master_patterns, synthetic
 from kikuchipy_geomdic.validation.camera import MODERATE, Camera
@@ -408,6 +409,10 @@ def _problem(sm, points):
 
     class Problem:
         experimental = sm.signal.data.reshape((-1,) + shape)[points[:, 0] * n + points[:, 1]]
+
+        @staticmethod
+        def simulate(geometry, rotations, arrays):
+            return project_patterns(rotations, geometry.detector(points), arrays)
 
     Problem.points = points
     rot = sm.xmap.rotations.flatten()[points[:, 0] * n + points[:, 1]]
