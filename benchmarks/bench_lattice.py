@@ -18,7 +18,9 @@ error moves a polycrystal's PC (the calibration holds the lattice there;
 Printed per map and tolerance: the PC errors, their standard errors, the
 largest |error| / standard error, the fitted c/a stretch with its standard
 error against the data's, how many of the calibration points have the
-right c axis (a 90 deg variant wrong is a point wrongly indexed), time.
+right c axis (a 90 deg variant wrong is a point wrongly indexed), whether
+the calibration says it converged (a fitted c/a near cubic is marked not
+converged: the variants alike), time.
 
 Usage::
 
@@ -110,7 +112,7 @@ def run(
         + " | se "
         + " ".join(f"{se[k]:.1e}" for k in PC)
         + f" | max z {z:4.1f} | c/a stretch {fit:<34s} | c axis right {c_right:4.0%} "
-        f"| {seconds:3.0f} s" + after
+        f"| conv {res.converged!s:5} | {seconds:3.0f} s" + after
     )
 
 

@@ -97,3 +97,57 @@ def si_moving_screen(pytestconfig):
     (:func:`data_required`)."""
     required = data_required(pytestconfig)
     return lambda distance: _si_moving_screen(distance, required)
+
+
+class TwoPhaseMap:
+    """A synthetic map of Ni (left half) and Si (right half) points, each
+    phase's patterns simulated from its shipped master pattern at one true
+    geometry (a random orientation per point, 200 counts/px), and the
+    truth, the start (orientations 0.3 deg off, PC about 2 % off) and both
+    phases' :class:`~kikuchipy_geomdic.validation.synthetic.SyntheticMap`."""
+
+    def __init__(self, nav=(6, 6), shape=(60, 60), seed=0, dose=200, names=("Ni", "Si")):
+        import numpy as np
+        from orix.crystal_map import CrystalMap, PhaseList
+        from orix.quaternion import Rotation
+
+        from kikuchipy_geomdic.validation import synthetic
+
+        # ni and si: the first and second phase (Ni and Si unless *names* say)
+        self.ni = synthetic.synthetic_map(names[0], nav, shape=shape, seed=seed, dose=dose)
+        self.si = synthetic.synthetic_map(names[1], nav, shape=shape, seed=seed + 1, dose=dose)
+        self.is_si = (np.indices(nav)[1] >= nav[1] // 2).ravel()
+        mask = self.is_si.reshape(nav + (1, 1))
+        self.signal = self.ni.signal.deepcopy()
+        self.signal.data = np.where(mask, self.si.signal.data, self.ni.signal.data)
+        phases = PhaseList({0: self.ni.master_pattern.phase, 1: self.si.master_pattern.phase})
+        phases[1].color = "tab:orange"
+
+        def both(a, b, phase_id=None):
+            q = np.where(
+                self.is_si[:, None],
+                b.rotations.data.reshape(-1, 4),
+                a.rotations.data.reshape(-1, 4),
+            )
+            return CrystalMap(
+                rotations=Rotation(q),
+                phase_id=self.is_si.astype(int) if phase_id is None else phase_id,
+                x=a.x,
+                y=a.y,
+                phase_list=phases.deepcopy(),
+                scan_unit="um",
+            )
+
+        self.xmap = both(self.ni.xmap, self.si.xmap)
+        self.start_xmap = both(self.ni.start_xmap, self.si.start_xmap)
+        self.both = both
+        self.master_patterns = [self.ni.master_pattern, self.si.master_pattern]
+        self.start_detector = self.ni.start_detector
+        self.detector = self.ni.detector
+        self.geometry = self.ni.geometry
+
+
+@pytest.fixture(scope="session")
+def two_phase():
+    """:class:`TwoPhaseMap` of 6 x 6 points of 60 px (Ni left, Si right)."""
+    return TwoPhaseMap()

@@ -9,20 +9,23 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 
-from kikuchipy.signals import EBSD
+from kikuchipy.signals import EBSD, EBSDMasterPattern
 from orix.crystal_map import CrystalMap
 
 from kikuchipy_geomdic.geometry import DEFAULT_STEPS, check_parameters
 from kikuchipy_geomdic.geometry.maps import check_signal_and_detector, navigation_shape
-from kikuchipy_geomdic.patterns.phases import check_phase
+from kikuchipy_geomdic.indexing.phases_to_refine import phases_to_refine
 from kikuchipy_geomdic.patterns.simulation import check_master_pattern
 
 
-def _check_inputs(signal, xmap, detector, master_pattern, phase, nav):
+def _check_inputs(signal, xmap, detector, master_pattern, phase, nav, ops=None, energy=None):
+    """Check the inputs; return the phases to refine (:class:`PhaseToRefine`)."""
     check_signal_and_detector(signal, detector)
     if not isinstance(xmap, CrystalMap):
         raise TypeError(f"xmap must be an orix CrystalMap, not {type(xmap).__name__}")
-    check_master_pattern(master_pattern)
+    one = isinstance(master_pattern, EBSDMasterPattern)
+    for mp in [master_pattern] if one else master_pattern:
+        check_master_pattern(mp)
     if len(xmap.shape) > 2 or navigation_shape(xmap) != nav or xmap.size != nav[0] * nav[1]:
         raise ValueError(
             f"xmap shape {xmap.shape} (with {xmap.size} points) does not match the "
@@ -39,7 +42,7 @@ def _check_inputs(signal, xmap, detector, master_pattern, phase, nav):
             f"The detector has {n_pc} PCs, which fits neither one PC nor the "
             f"signal's {nav[0] * nav[1]} map points"
         )
-    return check_phase(xmap, master_pattern, phase)
+    return phases_to_refine(xmap, master_pattern, phase, ops, energy)
 
 
 def _check_steps(names: Sequence[str], steps: Mapping[str, float] | None) -> dict[str, float]:

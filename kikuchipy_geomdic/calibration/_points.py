@@ -92,16 +92,20 @@ def _points(points, usable: np.ndarray, nav: tuple[int, int]) -> np.ndarray:
     bad = ~usable[pts[:, 0], pts[:, 1]]
     if bad.any():
         raise ValueError(
-            f"{bad.sum()} point(s) are not indexed with the chosen phase, e.g. "
+            f"{bad.sum()} point(s) are not indexed with a phase calibrated from, e.g. "
             f"{pts[bad][0].tolist()}"
         )
     return pts
 
 
-def _select_points(points, xmap: CrystalMap, phase_id: int, nav: tuple[int, int]) -> np.ndarray:
+def _select_points(points, xmap: CrystalMap, phase_ids, nav: tuple[int, int]) -> np.ndarray:
     """The calibration points (N, 2): *points* spread over the usable map
-    points, or the explicit array checked; at least one."""
-    pts = _points(points, usable_points(xmap, phase_id).reshape(nav), nav)
+    points of the phases *phase_ids* (one id or several), or the explicit
+    array checked; at least one."""
+    usable = np.zeros(xmap.shape, dtype=bool)
+    for pid in np.atleast_1d(phase_ids):
+        usable |= usable_points(xmap, int(pid))
+    pts = _points(points, usable.reshape(nav), nav)
     # One pattern is enough where its DIC field determines the parameters
     # (the moving-screen experiment: a PC from each of three patterns);
     # where it does not, the standard errors and the significance rule say so

@@ -1,5 +1,5 @@
 """The problem and the state of a refinement: everything that stays fixed
-(:class:`_Problem`, made by :func:`_prepare_problem`), where a loop stands
+(:class:`_Problem`, made by :func:`~._preparation._prepare_problem`), where a loop stands
 (:class:`_State`), what it returns (:class:`_LoopOutcome`) and its history
 records (:func:`_step_record`).
 
@@ -11,50 +11,41 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
 
 import numpy as np
-from kikuchipy.signals import EBSD, EBSDMasterPattern
-from orix.crystal_map import CrystalMap
+from kikuchipy.signals import EBSDMasterPattern
 from orix.quaternion import Rotation
 
-from kikuchipy_geomdic.calibration._checks import _check_steps
 from kikuchipy_geomdic.calibration._crystal import (
-    OTHER_CRYSTAL_FRACTION,
-    NotOneCrystalError,
     _Crystal,
-    _one_crystal,
-    _other_crystal,
 )
-from kikuchipy_geomdic.calibration._points import _experimental, _select_points
+from kikuchipy_geomdic.calibration._phases import (
+    _best_variants,
+    _by_phase,
+    _grain_labels,
+    _sub_problems,
+)
 from kikuchipy_geomdic.calibration._processing import (
-    _bands_divided_out,
     _compared,
     _fit_lobe,
-    _static_background,
     _with_mean_bands,
 )
+from kikuchipy_geomdic.calibration._systematic import _grains
 from kikuchipy_geomdic.calibration.jacobian import (
     UNIQUE_AXIS_SYSTEMS,
     analytic_jacobian,
     finite_difference_jacobian,
 )
 from kikuchipy_geomdic.geometry import MapGeometry, rotation_vectors
-from kikuchipy_geomdic.geometry.maps import flat_index
 from kikuchipy_geomdic.indexing import orientation as ori
 from kikuchipy_geomdic.indexing._point_refinement import _VARIANT, _refine_points
+from kikuchipy_geomdic.indexing._projection import PhaseArrays
 from kikuchipy_geomdic.indexing.reindex import refine_orientations
 from kikuchipy_geomdic.indexing.variants import _proper_rotations, _variant_table
 from kikuchipy_geomdic.patterns import displacement as dsp
-
-#: The free orientation model warns, and "auto" takes the crystal model,
-#: when at least this fraction of the starts lie within 5 deg of one
-#: parent: the map looks like one crystal
-#: (users' starts of BaTiO3 domain maps: 85-93 %; of a 1 mm Ni crystal 71
-#: %; kikuchipy's real 3 x 3 Ni map of three grains 67 %).
-ONE_CRYSTAL_NOTE = 0.7
 
 #: Paper solver: smallest side (px) the patterns are binned down to for
 #: the orientation refinements inside the loop. Orientations refined from
@@ -90,6 +81,23 @@ class _Problem:
     lattice_tolerance: float = 0.0
     #: The crystal's c axis over the phase's, as simulated (:attr:`arrays`)
     stretch: float = 1.0
+    #: The phases calibrated from (:class:`PhaseToRefine`); the first is
+    #: :attr:`master_pattern`, :attr:`phase` and :attr:`pseudo_symmetry_ops`
+    phases: tuple = ()
+    #: Index into :attr:`phases` of each point's phase (N,)
+    point_phase: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def multi_phase(self) -> bool:
+        """Whether the points are of several phases: each phase's points
+        are then answered by their one-phase problem (:attr:`sub_problems`)."""
+        return len(self.phases) > 1
+
+    @cached_property
+    def sub_problems(self) -> list:
+        """(rows, one-phase problem of those points) per phase with points
+        (:func:`~kikuchipy_geomdic.calibration._phases._sub_problems`)."""
+        return _sub_problems(self)
 
     @property
     def lattice_prior(self) -> float | None:
@@ -120,8 +128,10 @@ class _Problem:
     def lattice_result(self, stretch: float, standard_error: float) -> dict[str, Any]:
         """What the calibration reports of the lattice fitted: the c axis'
         *stretch* (with its *standard_error*) against the phase's, the
-        c/a it makes and whether the map determines it (its standard
-        error below half the prior's, :attr:`lattice_tolerance`)."""
+        c/a it makes, whether the map determines it (its standard
+        error below half the prior's, :attr:`lattice_tolerance`) and, with
+        pseudo-symmetry operators, whether it still tells the variants
+        apart (c/a beyond 3 standard errors of the parent's 1)."""
         lat = self.phase.structure.lattice
         ratio = lat.c / lat.a
         return {
@@ -132,6 +142,10 @@ class _Problem:
             "phase_c_over_a": float(ratio),
             "tolerance": float(self.lattice_tolerance),
             "determined": bool(standard_error < 0.5 * self.lattice_tolerance),
+            "variants_apart": bool(
+                self.pseudo_symmetry_ops is None
+                or abs(ratio * stretch - 1) > 3 * ratio * standard_error
+            ),
         }
 
     @cached_property
@@ -145,13 +159,26 @@ class _Problem:
         grain's: the crystal's proper rotations, times the variant
         operators if there are any."""
         symmetry = self.phase.point_group
+        if self.multi_phase:
+            raise ValueError("The points are of several phases: ask grains() of them")
         if self.pseudo_symmetry_ops is None:
             return _proper_rotations(symmetry)
         return _variant_table(self.pseudo_symmetry_ops, symmetry)[0].reshape(-1, 4)
 
+    def grains(self, q: np.ndarray) -> np.ndarray:
+        """Grain labels (N,) of the orientations *q* (N, 4) under
+        :attr:`grain_group` (each phase's own, with several phases)."""
+        if self.multi_phase:
+            return _grain_labels(self, q)
+        return _grains(q, self.grain_group)
+
     @cached_property
-    def _phase_arrays(self) -> ori.MasterPatternArrays:
-        """The master pattern's hemispheres at the energy, its phase's lattice."""
+    def _phase_arrays(self) -> ori.MasterPatternArrays | PhaseArrays:
+        """The master pattern's hemispheres at the energy, its phase's
+        lattice; with several phases each point's phase's."""
+        if self.multi_phase:
+            arrays = tuple(p.arrays(self.energy) for p in self.phases)
+            return PhaseArrays(arrays, np.asarray(self.point_phase))
         return ori.master_pattern_arrays(self.master_pattern, self.energy)
 
     @cached_property
@@ -250,6 +277,9 @@ class _Problem:
     ) -> tuple[Rotation, np.ndarray]:
         """Refine orientations with kikuchipy, on patterns binned by
         *binning* (default :attr:`loop_binning`)."""
+        if self.multi_phase:
+            ask = lambda sub, r: sub.refine_orientations(geometry, r, binning)  # noqa: E731
+            return _by_phase(self, ask, rotations)
         kw = dict(self.refine_kwargs)
         if self.pseudo_symmetry_ops is not None:
             kw["pseudo_symmetry_ops"] = self.pseudo_symmetry_ops
@@ -281,7 +311,10 @@ class _Problem:
     def variants(self, rotations: Rotation) -> tuple[np.ndarray, Rotation]:
         """Return, per point, the pseudo-symmetry operator (0: none) that
         brings the start closest to *rotations*, and the remaining
-        deviation ``~(op * start) * rotation`` (a sample-frame rotation)."""
+        deviation ``~(op * start) * rotation`` (a sample-frame rotation);
+        with several phases, each phase's operators."""
+        if self.multi_phase:
+            return _by_phase(self, lambda sub, r: sub.variants(r), rotations)
         ops_all = self.operators()
         angles = np.stack(
             [(~(op * self.start_rotations) * rotations).angle for op in ops_all], axis=1
@@ -301,6 +334,8 @@ class _Problem:
         """NCC (N,) of the patterns with their simulations after the
         *rotations* are refined at *geometry* (Gauss-Newton, coarse to
         fine, :func:`~kikuchipy_geomdic.indexing.orientation.refine_arrays`)."""
+        if self.multi_phase:
+            return _by_phase(self, lambda sub, r: sub.refined_ncc(geometry, r), rotations)
         det = geometry.detector(self.points)
         pcs = np.broadcast_to(det.pc.reshape(-1, 3), (rotations.size, 3))
         return ori.refine_arrays(
@@ -326,7 +361,10 @@ class _Problem:
         refined to convergence from its own start, and asked again where
         it had answered, the same choices took over half of a domain map's
         calibration (tutorial 03's map, seeds 0-2: 42.6, 23.1 and 38.4 s
-        against 17.9, 14.5 and 24.7 s)."""
+        against 17.9, 14.5 and 24.7 s). With several phases, each phase's
+        points with its own operators."""
+        if self.multi_phase:
+            return _best_variants(self, geometry, rotations)
         ops = self.operators()
         if ops.size == 1:
             return rotations
@@ -453,108 +491,3 @@ def _step_record(
         accepted=accepted,
         **extra,
     )
-
-
-def _prepare_problem(
-    signal: EBSD,
-    xmap: CrystalMap,
-    master_pattern: EBSDMasterPattern,
-    energy: float,
-    names: tuple[str, ...],
-    points,
-    phase_id: int,
-    nav: tuple[int, int],
-    steps: Mapping[str, float] | None,
-    dic_kwargs: dict,
-    refine_kwargs: Mapping[str, Any] | None,
-    pseudo_symmetry_ops: Rotation | None,
-    orientation_model: str | None = "free",
-    geometry0: MapGeometry | None = None,
-) -> _Problem:
-    """Check the steps, select the points, read their patterns and
-    starting orientations: the :class:`_Problem` the loops solve. With
-    *orientation_model* "crystal" or "auto", the starts are tied to one
-    parent when they are one crystal (:func:`_one_crystal`, and by their
-    patterns at *geometry0*, :func:`_other_crystal`); "crystal" raises
-    :class:`NotOneCrystalError` when they are not; "free" warns when they
-    look like one crystal; None (the paper's solver) does neither."""
-    steps = _check_steps(names, steps)
-    ref_kw = dict(refine_kwargs or {})
-    ops = ref_kw.pop("pseudo_symmetry_ops", None)
-    if pseudo_symmetry_ops is not None:
-        ops = pseudo_symmetry_ops
-    pts = _select_points(points, xmap, phase_id, nav)
-    exp = _experimental(signal, pts, nav)
-    lookup = np.full(nav[0] * nav[1], -1)
-    lookup[xmap.id] = np.arange(xmap.size)
-    start = Rotation(xmap.rotations.data[lookup[flat_index(pts, nav)]])
-    ops = None if ops is None else Rotation(ops).flatten()
-    crystal, why = None, ""
-    if orientation_model is not None:
-        crystal, why = _one_crystal(start, xmap.phases[phase_id].point_group, ops)
-    if orientation_model == "auto" and (crystal is None or crystal.fraction < ONE_CRYSTAL_NOTE):
-        orientation_model = "free"
-    if orientation_model == "free":
-        if crystal is not None and crystal.fraction >= ONE_CRYSTAL_NOTE:
-            warnings.warn(
-                f"{100 * crystal.fraction:.0f} % of the starting orientations are within 5 deg "
-                "of one parent orientation: the map looks like one crystal, where a misfit "
-                "every pattern shares does not average out and the free orientation model's "
-                "standard errors can miss it (on BaTiO3 domain maps by 10-22 of them). "
-                "orientation_model='crystal' ties the points to one parent and adds the "
-                "shared misfit to the standard errors",
-                UserWarning,
-                stacklevel=3,
-            )
-        crystal = None
-    problem = _Problem(
-        experimental=exp,
-        points=pts,
-        start_rotations=start,
-        master_pattern=master_pattern,
-        energy=float(energy),
-        # The master pattern's phase, checked to match xmap's: kikuchipy
-        # refuses phases whose atom lists differ in order (as after a
-        # round trip through an h5ebsd file)
-        phase=master_pattern.phase.deepcopy(),
-        parameters=names,
-        steps=steps,
-        dic_kwargs=dic_kwargs,
-        refine_kwargs=ref_kw,
-        pseudo_symmetry_ops=ops,
-        background=_static_background(signal),
-    )
-    if crystal is not None:
-        # The parent in each start's variant, the starts' own errors
-        # (absorbed geometry, misindexed points) left behind. The variant
-        # is the indexer's until the DIC stage stops short of the basin or
-        # reaches it: at a start 1.8 % off, BaTiO3's variants compared
-        # there put 32 of 36 points of a six-variant map in a wrong one
-        # (significance 1.9), and the PC ended 2e-3 off
-        anchors = crystal.anchors(start)
-        # Points far from the parent are misindexed or another crystal:
-        # their patterns tell which, the parent's best variant refined at
-        # the start geometry (unrefined, a start that absorbed the
-        # geometry's error fits its pattern better than the parent does)
-        far = crystal.far(start)
-        # Too few far starts to make another crystal: no refinement needed
-        if far.mean() >= OTHER_CRYSTAL_FRACTION:
-            best = problem.best_variants(geometry0, anchors)
-            why = _other_crystal(
-                problem.ncc(geometry0, start), problem.refined_ncc(geometry0, best), far
-            )
-            crystal = None if why else crystal
-    if crystal is None and orientation_model == "crystal":
-        raise NotOneCrystalError(
-            f"orientation_model='crystal' was asked of a map that is not one crystal: {why}. "
-            "Calibrate a polycrystal (or several crystals) with orientation_model='free', "
-            "or one crystal's points only (points=...)"
-        )
-    if crystal is not None:
-        problem = replace(problem, start_rotations=anchors, crystal=crystal)
-    # Judged last: the crystal's checks compare plain simulations
-    if problem.background is None or geometry0 is None:
-        return problem
-    sim = problem.simulate(geometry0, start)
-    divided = _bands_divided_out(problem.background, problem.experimental, sim) is not None
-    return replace(problem, mean_divided=divided)

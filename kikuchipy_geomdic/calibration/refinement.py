@@ -49,7 +49,8 @@ from kikuchipy_geomdic.calibration._crystal import CRYSTAL_SCATTER, ORIENTATION_
 from kikuchipy_geomdic.calibration._dic_stage import _check_matched, _dic_stage
 from kikuchipy_geomdic.calibration._full_field import FULL_FIELD_BASIN, _full_field_stage
 from kikuchipy_geomdic.calibration._points import calibration_points
-from kikuchipy_geomdic.calibration._problem import _binning, _prepare_problem, _State
+from kikuchipy_geomdic.calibration._preparation import _prepare_problem
+from kikuchipy_geomdic.calibration._problem import _binning, _State
 from kikuchipy_geomdic.calibration._progress import _Progress, _show_progressbar
 from kikuchipy_geomdic.calibration.result import (
     GeometryRefinementResult,
@@ -64,6 +65,7 @@ from kikuchipy_geomdic.geometry import (
     solved_parameters,
 )
 from kikuchipy_geomdic.geometry.maps import navigation_shape
+from kikuchipy_geomdic.indexing.phases_to_refine import check_energy, unrefined_phases
 
 __all__ = [
     "refine_geometry_dic",
@@ -131,7 +133,7 @@ def refine_geometry_dic(
     signal: EBSD,
     xmap: CrystalMap,
     detector: EBSDDetector,
-    master_pattern: EBSDMasterPattern,
+    master_pattern: EBSDMasterPattern | Sequence[EBSDMasterPattern],
     energy: float,
     *,
     parameters: Sequence[str] = DEFAULT_PARAMETERS,
@@ -139,7 +141,7 @@ def refine_geometry_dic(
     solver: str = "joint",
     orientation_prior: float | None = None,
     orientation_model: str = "auto",
-    pseudo_symmetry_ops: Rotation | None = None,
+    pseudo_symmetry_ops: Rotation | Sequence[Rotation | None] | None = None,
     steps: Mapping[str, float] | None = None,
     rois: tuple[int, int] = (8, 8),
     binning: int | None = None,
@@ -172,9 +174,18 @@ def refine_geometry_dic(
         Starting geometry: one PC (taken at the map centre) or one PC per
         map point (its mean is taken at the mean position).
     master_pattern
-        Lambert master pattern of the phase.
+        Lambert master pattern of the phase, or a list of them, one per
+        phase of the map, each matched to the map's phase it is of
+        (:func:`~kikuchipy_geomdic.indexing.phases_to_refine.phases_to_refine`:
+        proper point group, then lattice or name). The points of every
+        phase with a master pattern are chosen across the map and enter one
+        joint solve (one geometry, a rotation per pattern, each pattern
+        simulated from its phase's master pattern); points of a phase
+        without one are left out, with a warning. The result's ``xmap``
+        holds each point's phase
+        (:attr:`GeometryRefinementResult.points_per_phase`).
     energy
-        Beam energy in kV.
+        Beam energy in kV, one for every phase.
     parameters
         Parameters to refine, from
         :data:`~kikuchipy_geomdic.geometry.parameters.PARAMETERS`. Default the
@@ -236,7 +247,9 @@ def refine_geometry_dic(
         ``variant_operators()[1:]`` for BaTiO3. The joint
         solver picks per point the variant whose simulated pattern
         correlates best, before the loop and at the refined geometry; the
-        paper solver passes them to kikuchipy.
+        paper solver passes them to kikuchipy. With a list of master
+        patterns, a list of operators, one per master pattern (None where a
+        phase has none).
     steps
         Central-difference step per parameter; defaults in
         :data:`~kikuchipy_geomdic.geometry.parameters.DEFAULT_STEPS`.
@@ -280,7 +293,8 @@ def refine_geometry_dic(
         (``noise``, ``blur``, ``max_roi_crossings``, ...).
     phase
         Phase name or id in *xmap* to calibrate with; required when *xmap*
-        has several phases.
+        has several phases and one master pattern is given (with a list,
+        each master pattern is matched to its phase).
     seed
         Seed of the DIC noise.
     full_field
@@ -366,7 +380,11 @@ def refine_geometry_dic(
         parameters, solver, jacobian, orientation_prior, orientation_model, lattice_tolerance
     )
     nav = navigation_shape(signal)
-    phase_id = _check_inputs(signal, xmap, detector, master_pattern, phase, nav)
+    phases = _check_inputs(
+        signal, xmap, detector, master_pattern, phase, nav, pseudo_symmetry_ops, energy
+    )
+    _left_out_note(xmap, phases)
+    energy = check_energy(energy)
     # Left at its default, the full field runs only where the DIC stage
     # has brought the geometry into its basin; True forces it
     guarded = full_field is None
@@ -378,9 +396,8 @@ def refine_geometry_dic(
         dic_kw["binning"] = 1 if not full_field else _binning(signal.axes_manager.signal_shape)
     geometry0 = MapGeometry.from_detector(detector, _step_sizes(signal), nav)
     problem = _prepare_problem(
-        signal, xmap, master_pattern, energy, names, points, phase_id, nav, steps, dic_kw,
-        refine_kwargs, pseudo_symmetry_ops, orientation_model if solver == "joint" else None,
-        geometry0,
+        signal, xmap, phases, energy, names, points, nav, steps, dic_kw, refine_kwargs,
+        orientation_model if solver == "joint" else None, geometry0,
     )  # fmt: skip
     problem = replace(problem, lattice_tolerance=float(lattice_tolerance))
     if problem.crystal is not None and orientation_prior is None:
@@ -397,7 +414,7 @@ def refine_geometry_dic(
     )
     header = (
         f"Refining the geometry ({solver} solver) with {len(problem.points)} calibration "
-        f"points: {', '.join(names)}"
+        f"points{_per_phase(problem)}: {', '.join(names)}"
         + (
             f"; one crystal ({100 * problem.crystal.fraction:.0f} % of the starts within "
             f"5 deg of its parent's variants), scatter prior {orientation_prior:g} deg"
@@ -435,6 +452,28 @@ def refine_geometry_dic(
         standard_errors,
         adequacy,
     )
+
+
+def _left_out_note(xmap, phases) -> None:
+    """Warn about the map's indexed phases without a master pattern (with
+    several given): their points are left out of the calibration."""
+    left = unrefined_phases(xmap, phases)
+    if len(phases) > 1 and left:
+        listed = ", ".join(f"{name!r} ({n} points)" for name, n in left.items())
+        warnings.warn(
+            f"No master pattern of the phases {listed}: their points are left out of the "
+            "calibration",
+            UserWarning,
+            stacklevel=3,
+        )
+
+
+def _per_phase(problem) -> str:
+    """The points per phase for the header, with several phases."""
+    if not problem.multi_phase:
+        return ""
+    counts = np.bincount(problem.point_phase, minlength=len(problem.phases))
+    return " (" + ", ".join(f"{p.name} {n}" for p, n in zip(problem.phases, counts)) + ")"
 
 
 def _failures(problem, outcome, matched, standard_errors, adequacy, geometry0):
@@ -489,6 +528,20 @@ def _failures(problem, outcome, matched, standard_errors, adequacy, geometry0):
         solved, _ = solved_parameters(names)
         standard_errors = _named_errors(names, np.full(len(solved), np.inf))
         adequacy = {}
+    if not adequacy.get("lattice", {}).get("variants_apart", True):
+        # A lattice fitted to the parent's cubic one makes the variants
+        # alike, and wrong ones can pull it there: a domain map whose c/a
+        # is 0.6 % below the CIF's fitted 1.0002 +- 0.0007, its variants
+        # 20 % right and its PC 1.8e-3 off at 4.8 standard errors
+        outcome = replace(outcome, converged=False)
+        warnings.warn(
+            "The c/a fitted is within 3 standard errors of 1, where the variants look alike: "
+            "they and the geometry fitted with them cannot be trusted; marked not converged. A "
+            "crystal this near cubic has no variants to tell apart (calibrate without "
+            "pseudo_symmetry_ops); a tetragonal one needs starts with more variants right",
+            UserWarning,
+            stacklevel=3,
+        )
     _empty_rois_note(outcome.state.field)
     return outcome, standard_errors, adequacy
 

@@ -56,6 +56,8 @@ class GeometryRefinementResult:
         one) and ``dic_rms``: the RMS displacement in pixels left in each
         pattern's field at the refined state (one far above the rest marks
         a pattern the calibration could not use, e.g. a failed start).
+        Calibrated from several master patterns, its phases are those of
+        the input map with their ids, and each point has its own.
     points
         Calibration points (N, 2) as (row, column).
     parameter_names
@@ -167,6 +169,12 @@ class GeometryRefinementResult:
 
     def __repr__(self) -> str:
         return self.table()
+
+    @property
+    def points_per_phase(self) -> dict[str, int]:
+        """The calibration points of each phase, by the phase's name."""
+        ids, counts = np.unique(self.xmap.phase_id, return_counts=True)
+        return {self.xmap.phases[int(i)].name: int(c) for i, c in zip(ids, counts)}
 
     @property
     def lattice(self) -> dict[str, Any]:
@@ -328,6 +336,15 @@ class GeometryRefinementResult:
         return bound.table(self.standard_errors)
 
 
+def _phases_of_points(problem: _Problem) -> dict[str, Any]:
+    """The phase list and the phase ids of the calibration points' map."""
+    if not problem.multi_phase:
+        return {"phase_list": PhaseList(problem.phase)}
+    phases = PhaseList({p.phase_id: p.phase.deepcopy() for p in problem.phases})
+    ids = np.array([p.phase_id for p in problem.phases])[problem.point_phase]
+    return {"phase_list": phases, "phase_id": ids}
+
+
 def _final_orientations(
     problem: _Problem, state: _State, solver: str, refine_kwargs: Mapping[str, Any] | None
 ) -> tuple[Rotation, np.ndarray]:
@@ -403,7 +420,7 @@ def _build_result(
     xmap_out = CrystalMap(
         rotations=rotations,
         x=np.arange(len(pts), dtype=float),
-        phase_list=PhaseList(problem.phase),
+        **_phases_of_points(problem),
         prop={
             "scores": np.asarray(scores),
             "row": pts[:, 0],

@@ -24,7 +24,6 @@ from kikuchipy_geomdic.calibration._dic_fit import (
 from kikuchipy_geomdic.calibration._problem import _Problem, _State
 from kikuchipy_geomdic.calibration._systematic import (
     _grain_errors,
-    _grains,
     _quadrants,
     _region_errors,
 )
@@ -141,7 +140,7 @@ def _dic_update(problem: _Problem, state: _State, prior) -> tuple[JointUpdate, n
         w = _pattern_weights(state.field, var)
         system = JointSystem.build(jg, jr, w, _prior_per_axis(prior))
         q = np.asarray(state.rotations.flatten().data)
-        return update, _grain_errors(system, b, offsets, _grains(q, problem.grain_group))[0]
+        return update, _grain_errors(system, b, offsets, problem.grains(q))[0]
     # One crystal: what the patterns share, from the ROIs' quadrants (as
     # the full field's pixels'). Without it the DIC stage's errors missed
     # a shared misfit by 8-10 of them on a BaTiO3 domain map whose DIC

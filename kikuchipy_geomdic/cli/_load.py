@@ -24,7 +24,7 @@ __all__ = [
 
 
 #: Master patterns shipped with the package, by name.
-MASTER_PATTERN_NAMES = ("Si", "BaTiO3")
+MASTER_PATTERN_NAMES = ("Si", "BaTiO3", "Ni")
 
 
 _UM = ("um", "µm", "μm", "micron", "microns", "micrometre", "micrometer")
@@ -373,15 +373,37 @@ def _phase_arg(phase: str | None) -> str | int | None:
 
 
 def _load_map(args: argparse.Namespace):
-    """The patterns, crystal map, master pattern and matched phase id of
+    """The patterns, crystal map, master pattern (a list with several
+    ``--master-pattern``) and the phases to refine
+    (:class:`~kikuchipy_geomdic.indexing.phases_to_refine.PhaseToRefine`) of
     ``refine`` and ``reindex``, each checked against the others."""
-    from kikuchipy_geomdic.patterns.phases import check_phase
+    from kikuchipy_geomdic.indexing.phases_to_refine import phases_to_refine
 
     signal = load_patterns(args.patterns)
     xmap = load_crystal_map(args.orientations, signal)
     _check_step_sizes(signal, xmap)
-    mp = load_master_pattern(args.master_pattern, args.energy)
-    return signal, xmap, mp, check_phase(xmap, mp, _phase_arg(args.phase))
+    specs = [_named_spec(s) for s in args.master_pattern]
+    mps = [load_master_pattern(spec, args.energy) for _, spec in specs]
+    if len(mps) > 1 and args.pseudo_symmetry is not None:
+        raise CLIError("--pseudo-symmetry takes one --master-pattern (one phase)")
+    mp = mps[0] if len(mps) == 1 else mps
+    phases = phases_to_refine(xmap, mp, _phase_arg(args.phase))
+    for (name, spec), p in zip(specs, phases):
+        own = xmap.phases[p.phase_id].name
+        if name is not None and name.lower() not in (own.lower(), str(p.phase_id)):
+            raise CLIError(
+                f"--master-pattern {name}={spec}: its phase {p.name!r} is the map's phase "
+                f"{own!r} (id {p.phase_id}), not {name!r}"
+            )
+    return signal, xmap, mp, phases
+
+
+def _named_spec(spec: str) -> tuple[str | None, str]:
+    """``NAME=FILE`` as (NAME, FILE); a file or shipped name as (None, it)."""
+    if "=" in spec and not Path(spec).exists():
+        name, _, rest = spec.partition("=")
+        return name, rest
+    return None, spec
 
 
 def _pseudo_symmetry(args: argparse.Namespace):

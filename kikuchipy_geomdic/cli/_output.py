@@ -72,14 +72,26 @@ def _inputs(args: argparse.Namespace, signal, master_pattern, **extra) -> dict[s
         "orientations": (
             str(Path(args.orientations).resolve()) if args.orientations else "pattern file"
         ),
-        "master_pattern": (
-            str(Path(args.master_pattern).resolve())
-            if Path(args.master_pattern).exists()
-            else args.master_pattern
+        "master_pattern": _one_or_list([_spec(s) for s in args.master_pattern]),
+        "master_pattern_title": _one_or_list(
+            [str(m.metadata.General.title) for m in _as_list(master_pattern)]
         ),
-        "master_pattern_title": str(master_pattern.metadata.General.title),
         "energy_kv": float(args.energy),
         "navigation_shape": list(navigation_shape(signal)),
         "pattern_shape": list(signal.axes_manager.signal_shape[::-1]),
         **extra,
     }
+
+
+def _spec(spec: str) -> str:
+    """A ``--master-pattern`` as given: a file's absolute path, or a name."""
+    return str(Path(spec).resolve()) if Path(spec).exists() else spec
+
+
+def _as_list(master_pattern) -> list:
+    return list(master_pattern) if isinstance(master_pattern, (list, tuple)) else [master_pattern]
+
+
+def _one_or_list(values: list):
+    """One value as itself (as with one phase), several as a list."""
+    return values[0] if len(values) == 1 else values

@@ -29,8 +29,12 @@ def _common_parser() -> argparse.ArgumentParser:
         "--master-pattern",
         metavar="MP",
         required=True,
+        action="append",
         help="master pattern file kikuchipy reads (e.g. EMsoft h5), or a shipped one: "
-        + ", ".join(MASTER_PATTERN_NAMES),
+        + ", ".join(MASTER_PATTERN_NAMES)
+        + "; repeat it, one per phase, for a map of several phases (NAME=FILE checks that "
+        "FILE is matched to the map's phase NAME): every phase with one is calibrated from "
+        "or reindexed",
     )
     common.add_argument(
         "--energy", metavar="KV", type=float, required=True, help="beam energy in kV"

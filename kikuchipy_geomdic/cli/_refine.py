@@ -18,7 +18,7 @@ from kikuchipy_geomdic.cli._load import (
     _pseudo_symmetry,
     start_detector,
 )
-from kikuchipy_geomdic.cli._output import _inputs, _Staging
+from kikuchipy_geomdic.cli._output import _inputs, _one_or_list, _Staging
 from kikuchipy_geomdic.cli._parser import _command_output, _fraction, _positive_int
 from kikuchipy_geomdic.cli._run import CLIError, _run_on_map, _warn
 
@@ -39,16 +39,16 @@ REFINE_OUTPUTS = (
 )
 
 
-def _calibration_points(signal, xmap, phase_id: int, n: int):
-    """About *n* usable points spread over the map, without NaN or blank
-    patterns (each candidate pattern is read once)."""
+def _calibration_points(signal, xmap, phase_ids: Sequence[int], n: int):
+    """About *n* usable points of the phases *phase_ids* spread over the
+    map, without NaN or blank patterns (each candidate pattern is read once)."""
     import numpy as np
 
     from kikuchipy_geomdic.calibration.refinement import calibration_points
     from kikuchipy_geomdic.geometry.maps import flat_index, navigation_shape, usable_points
 
     nav = navigation_shape(signal)
-    usable = usable_points(xmap, phase_id).reshape(nav)
+    usable = np.any([usable_points(xmap, i) for i in phase_ids], axis=0).reshape(nav)
     data = signal.data
     flat = data.reshape((-1,) + tuple(data.shape[-2:]))
     n_blank = 0
@@ -107,12 +107,14 @@ def _refine(args: argparse.Namespace) -> int:
     staging = _Staging(args.out, REFINE_OUTPUTS, args.overwrite)
     say = (lambda *a: None) if args.quiet else print
     ops = _pseudo_symmetry(args)
-    signal, xmap, mp, phase_id = _load_map(args)
-    _check_pseudo_symmetry(ops, mp)
+    signal, xmap, mp, phases = _load_map(args)
+    one = phases[0].master_pattern if len(phases) == 1 else None
+    if one is not None:
+        _check_pseudo_symmetry(ops, one)
     det = start_detector(signal, args)
     _check_detector(det, signal)
-
-    pts, n_usable, n_blank = _calibration_points(signal, xmap, phase_id, args.points)
+    ids = [p.phase_id for p in phases]
+    pts, n_usable, n_blank = _calibration_points(signal, xmap, ids, args.points)
     if n_blank:
         _warn(f"{n_blank} calibration candidate pattern(s) hold NaN or are blank: skipped")
     if len(pts) < args.points:
@@ -126,7 +128,7 @@ def _refine(args: argparse.Namespace) -> int:
     nav = navigation_shape(signal)
     say(
         f"Calibrating the geometry of {str(args.patterns)!r}: map {nav}, patterns "
-        f"{tuple(det.shape)} px, {mp.phase.name}, {args.energy:g} kV, "
+        f"{tuple(det.shape)} px, {', '.join(p.name for p in phases)}, {args.energy:g} kV, "
         f"{len(pts)} points"
     )
     res, seconds = _run_on_map(
@@ -142,7 +144,7 @@ def _refine(args: argparse.Namespace) -> int:
         orientation_model=args.orientation_model,
         rois=tuple(args.rois),
         max_iterations=args.max_iterations,
-        phase=phase_id,
+        phase=ids[0] if one is not None else None,
         seed=args.seed,
         pseudo_symmetry_ops=ops,
     )
@@ -152,12 +154,14 @@ def _refine(args: argparse.Namespace) -> int:
             args,
             signal,
             mp,
-            phase=mp.phase.name,
+            phase=_one_or_list([p.name for p in phases]),
             pseudo_symmetry=args.pseudo_symmetry,
             points_requested=args.points,
             seconds=round(seconds, 3),
         ),
     )
+    if one is None:
+        summary["calibration"]["points_per_phase"] = res.points_per_phase
     flat = signal.data.reshape((-1,) + tuple(signal.data.shape[-2:]))
     pattern = flat[int(flat_index(res.points[0], res.geometry.navigation_shape))]
     pattern = np.asarray(pattern.compute() if hasattr(pattern, "compute") else pattern)
@@ -185,6 +189,8 @@ def _refine(args: argparse.Namespace) -> int:
         f"{cal['iterations']} iteration(s) in {seconds:.1f} s (converged: "
         f"{summary['converged']}); mean NCC {cal['mean_ncc']:.4f} over {cal['points']} points."
     )
+    if one is None:
+        say("Points per phase: " + ", ".join(f"{k} {v}" for k, v in res.points_per_phase.items()))
     say(f"Results written to {str(staging.out)!r}: {', '.join(REFINE_OUTPUTS)}")
     return 0
 

@@ -21,7 +21,7 @@ from kikuchipy_geomdic.cli._load import (
     _pseudo_symmetry,
     start_detector,
 )
-from kikuchipy_geomdic.cli._output import _inputs, _Staging
+from kikuchipy_geomdic.cli._output import _inputs, _one_or_list, _Staging
 from kikuchipy_geomdic.cli._parser import _command_output
 from kikuchipy_geomdic.cli._run import CLIError, _run_on_map
 
@@ -29,6 +29,8 @@ from kikuchipy_geomdic.cli._run import CLIError, _run_on_map
 REINDEX_OUTPUTS = ("xmap_refined.ang", "xmap_refined.h5", "reindex.json")
 #: The domain figure ``reindex --pseudo-symmetry`` writes besides them.
 DOMAIN_FIGURE = "domains.png"
+#: The phase map ``reindex`` writes with several ``--master-pattern``.
+PHASE_FIGURE = "phases.png"
 
 
 def _reindex_detector(args: argparse.Namespace, signal):
@@ -69,6 +71,7 @@ def _reindex_detector(args: argparse.Namespace, signal):
 
 
 def _reindex(args: argparse.Namespace) -> int:
+    import numpy as np
     from orix import io as orix_io
 
     from kikuchipy_geomdic.geometry.maps import navigation_shape, usable_points
@@ -78,23 +81,39 @@ def _reindex(args: argparse.Namespace) -> int:
 
     ops = _pseudo_symmetry(args)
     figure = ops is not None and args.method == "geomdic"
-    names = REINDEX_OUTPUTS[:-1] + (DOMAIN_FIGURE,) * figure + REINDEX_OUTPUTS[-1:]
+    several = len(args.master_pattern) > 1
+    names = (
+        REINDEX_OUTPUTS[:-1]
+        + (DOMAIN_FIGURE,) * figure
+        + (PHASE_FIGURE,) * several
+        + REINDEX_OUTPUTS[-1:]
+    )
     staging = _Staging(args.out, names, args.overwrite)
     say = (lambda *a: None) if args.quiet else print
-    signal, xmap, mp, phase_id = _load_map(args)
-    _check_pseudo_symmetry(ops, mp)
+    signal, xmap, mp, phases = _load_map(args)
+    if not several:
+        _check_pseudo_symmetry(ops, mp)
+    if args.decide_phase and not several:
+        raise CLIError("--decide-phase needs two --master-pattern or more (one per phase)")
     det, source = _reindex_detector(args, signal)
     _check_detector(det, signal)
     kw = _method_kwargs(args, ops)
+    if several:
+        kw["decide_phase"] = args.decide_phase
+    else:
+        kw["phase"] = phases[0].phase_id
 
-    todo = usable_points(xmap, phase_id)
+    todo = np.any([usable_points(xmap, p.phase_id) for p in phases], axis=0)
     say(
         f"Reindexing {int(todo.sum())} point(s) of {str(args.patterns)!r} "
-        f"({navigation_shape(signal)} map, {xmap.phases[phase_id].name}) with the detector "
-        f"from {source}"
+        f"({navigation_shape(signal)} map, "
+        f"{', '.join(xmap.phases[p.phase_id].name for p in phases)}) with the detector "
+        f"from {source}" + (", each point's phase decided" if args.decide_phase else "")
     )
-    out, seconds = _run_on_map(reindex, args, (signal, xmap, det, mp), phase=phase_id, **kw)
+    out, seconds = _run_on_map(reindex, args, (signal, xmap, det, mp), **kw)
     stats = _stats(out, todo, ops, seconds, args.method)
+    if several:
+        stats.update(_phase_stats(out, todo))
     summary = {
         "format": "kikuchipy-geomdic reindex summary",
         "format_version": 1,
@@ -106,13 +125,17 @@ def _reindex(args: argparse.Namespace) -> int:
         if ops is None
         else {"source": args.pseudo_symmetry, "operators": ops.data.tolist()},
         "result": stats,
-        "inputs": _inputs(args, signal, mp, phase=out.phases[phase_id].name),
+        "inputs": _inputs(
+            args, signal, mp, phase=_one_or_list([out.phases[p.phase_id].name for p in phases])
+        ),
     }
     with staging as st:
         _write_ang(st.path("xmap_refined.ang"), out, det)
         orix_io.save(str(st.path("xmap_refined.h5")), out, overwrite=True)
         if figure:
             _domain_figure(out, ops, st.path(DOMAIN_FIGURE))
+        if several:
+            _phase_figure(out, st.path(PHASE_FIGURE))
         su.write_summary(summary, st.path("reindex.json"))
         st.commit()
     say(
@@ -130,6 +153,8 @@ def _reindex(args: argparse.Namespace) -> int:
             else "."
         )
     )
+    if several:
+        say("Points per phase: " + ", ".join(f"{k} {v}" for k, v in stats["phases"].items()))
     if "domains" in stats:
         say("Points per domain (c axis in the parent frame): " + ", ".join(
             f"{k} {v}" for k, v in stats["domains"].items()
@@ -301,4 +326,59 @@ def _reindex_parser(sub, common: argparse.ArgumentParser) -> None:
         metavar=("D1", "D2", "D3"),
         help="with --method kikuchipy: +- bounds in degrees on the three Euler angles",
     )
+    reidx.add_argument(
+        "--decide-phase",
+        action="store_true",
+        help="with several --master-pattern: refine every point against every phase and keep "
+        "the one its pattern shows (phase_margin: its significance; below 2.5 converged 0); "
+        "phases.png marks the points not decided",
+    )
     _command_output(reidx, "reindex", _reindex)
+
+
+def _phase_stats(out, todo) -> dict[str, Any]:
+    """What ``reindex.json`` reports of a map of several phases: the points
+    per phase and, with ``--decide-phase``, those whose phase changed and
+    those not decided (``phase_margin`` below the threshold)."""
+    import numpy as np
+
+    ids, counts = np.unique(out.phase_id[todo.ravel()], return_counts=True)
+    stats = {"phases": {out.phases[int(i)].name: int(c) for i, c in zip(ids, counts) if i >= 0}}
+    if "phase_margin" in out.prop:
+        stats["phase_changed"] = int(out.prop["phase_changed"].sum())
+        stats["phase_not_decided"] = int((todo.ravel() & (out.prop["converged"] == 0)).sum())
+    return stats
+
+
+def _phase_figure(xmap, path: Path) -> None:
+    """The phase map, the points not to trust (``converged`` 0: with
+    ``--decide-phase`` those whose phase is not decided too) marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    from matplotlib.colors import ListedColormap
+
+    shape = xmap.shape if len(xmap.shape) == 2 else (1, xmap.size)
+    ids = [int(i) for i, _ in xmap.phases if i >= 0]
+    index = np.full(xmap.size, np.nan)
+    for k, i in enumerate(ids):
+        index[xmap.phase_id == i] = k
+    colours = plt.get_cmap("tab10").colors[: len(ids)]
+    fig, ax = plt.subplots(figsize=(6, 6 * shape[0] / max(shape[1], 1) + 0.8))
+    ax.imshow(index.reshape(shape), cmap=ListedColormap(colours), vmin=-0.5,
+              vmax=len(ids) - 0.5, interpolation="nearest")  # fmt: skip
+    flagged = np.flatnonzero(np.asarray(xmap.prop.get("converged", 1)) == 0)
+    rows, cols = np.unravel_index(flagged, shape)
+    ax.scatter(cols, rows, marker="x", c="k", s=30, label="not converged / not decided")
+    handles = [plt.Rectangle((0, 0), 1, 1, color=c) for c in colours]
+    labels = [xmap.phases[i].name for i in ids]
+    if flagged.size:
+        handles.append(ax.collections[0])
+        labels.append(f"not to trust ({flagged.size})")
+    ax.legend(handles, labels, loc="upper left", bbox_to_anchor=(1.01, 1), fontsize=8)
+    ax.set_title("Phases")
+    ax.set_axis_off()
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(fig)

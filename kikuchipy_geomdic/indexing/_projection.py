@@ -105,6 +105,33 @@ def _smooth_across_equator(hemisphere, other, sigma):
     return ndimage.gaussian_filter(ring, sigma, mode="nearest")[inner]
 
 
+@dataclass(frozen=True)
+class PhaseArrays:
+    """The hemispheres of several phases and the phase of each pattern: a
+    stack of patterns of several phases projects (and differentiates) each
+    pattern from its own phase's :class:`MasterPatternArrays`.
+
+    Attributes
+    ----------
+    phases
+        A :class:`MasterPatternArrays` per phase.
+    labels
+        Index into *phases* of each pattern (N,), int.
+    """
+
+    phases: tuple
+    labels: np.ndarray
+
+    def groups(self, n: int):
+        """Yield each phase's pattern indices and arrays, for a stack of *n*."""
+        if n != self.labels.size:
+            raise ValueError(f"{n} patterns for the phase labels of {self.labels.size}")
+        for k, arrays in enumerate(self.phases):
+            rows = np.flatnonzero(self.labels == k)
+            if rows.size:
+                yield rows, arrays
+
+
 def master_pattern_arrays(
     master_pattern: EBSDMasterPattern | MasterPatternArrays, energy: float
 ) -> MasterPatternArrays:
@@ -132,7 +159,7 @@ def master_pattern_arrays(
     >>> mpa.upper.shape, mpa.upper.dtype.name, mpa.scale
     ((201, 201), 'float32', 100.0)
     """
-    if isinstance(master_pattern, MasterPatternArrays):
+    if isinstance(master_pattern, (MasterPatternArrays, PhaseArrays)):
         return master_pattern
     check_master_pattern(master_pattern)
     if master_pattern.data.shape[-1] != master_pattern.data.shape[-2]:
@@ -320,6 +347,8 @@ def _on_stack(kernel, quaternions, pcs, om, arrays, shape):
     q = np.ascontiguousarray(quaternions, dtype=np.float64).reshape(-1, 4)
     pcs = np.ascontiguousarray(pcs, dtype=np.float64).reshape(-1, 3)
     om = np.ascontiguousarray(om, dtype=np.float64)
+    if isinstance(arrays, PhaseArrays):
+        return _by_phase(kernel, q, pcs, om, arrays, shape)
     return kernel(
         q,
         pcs,
@@ -331,3 +360,18 @@ def _on_stack(kernel, quaternions, pcs, om, arrays, shape):
         float(arrays.scale),
         float(arrays.stretch),
     )
+
+
+def _by_phase(kernel, q, pcs, om, arrays: PhaseArrays, shape):
+    """:func:`_on_stack` of a stack of several phases: each phase's
+    patterns from its own arrays, put back in the stack's order."""
+    pcs = np.repeat(pcs, len(q), axis=0) if len(pcs) == 1 and len(q) > 1 else pcs
+    out = None
+    for rows, a in arrays.groups(len(q)):
+        part = _on_stack(kernel, q[rows], pcs[rows], om, a, shape)
+        parts = part if isinstance(part, tuple) else (part,)
+        if out is None:
+            out = tuple(np.empty((len(q),) + p.shape[1:], dtype=p.dtype) for p in parts)
+        for o, p in zip(out, parts):
+            o[rows] = p
+    return out if isinstance(part, tuple) else out[0]

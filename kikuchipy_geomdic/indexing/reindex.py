@@ -29,14 +29,19 @@ no scheduler or process pool of our own.
 The stages live in private modules: ``_map_refinement`` (the dask graph
 over the chunks, this package's solver), ``_point_refinement`` (a batch
 of points from their starts and variants), ``_reseed`` (poor points
-again from their neighbours), ``_kikuchipy`` (kikuchipy's route) and
-``_map_output`` (the refined crystal map).
+again from their neighbours), ``_kikuchipy`` (kikuchipy's route),
+``_map_output`` (the refined crystal map) and ``_phase_maps`` (a map of
+several phases, phase by phase, and the phase decision). The phases
+refined are :class:`~kikuchipy_geomdic.indexing.phases_to_refine.PhaseToRefine`
+(:func:`~kikuchipy_geomdic.indexing.phases_to_refine.phases_to_refine`).
 
 Layer 4 (indexing): may import geometry, io, patterns and indexing.
 """
 
 from __future__ import annotations
 
+import warnings
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -51,19 +56,14 @@ from kikuchipy_geomdic.geometry.maps import (
     navigation_shape,
     usable_points,
 )
-from kikuchipy_geomdic.indexing._kikuchipy import (
-    _reindex_kikuchipy,
-    quiet,
-    refine_orientations,
-    stack_signal,
+from kikuchipy_geomdic.indexing._kikuchipy import quiet, refine_orientations, stack_signal
+from kikuchipy_geomdic.indexing._map_refinement import VARIANT_SIGNIFICANCE, refine_map
+from kikuchipy_geomdic.indexing._phase_maps import _decide, _reindex_phases
+from kikuchipy_geomdic.indexing.phases_to_refine import (
+    check_energy,
+    phases_to_refine,
+    unrefined_phases,
 )
-from kikuchipy_geomdic.indexing._map_output import _flag_isolated, _with_domain
-from kikuchipy_geomdic.indexing._map_refinement import (
-    VARIANT_SIGNIFICANCE,
-    _reindex_geomdic,
-    refine_map,
-)
-from kikuchipy_geomdic.patterns.phases import check_phase
 
 __all__ = [
     "reindex",
@@ -91,13 +91,14 @@ def reindex(
     signal: EBSD,
     xmap: CrystalMap,
     detector: EBSDDetector,
-    master_pattern: EBSDMasterPattern,
+    master_pattern: EBSDMasterPattern | Sequence[EBSDMasterPattern],
     energy: float,
     *,
     phase: str | int | None = None,
     navigation_mask: np.ndarray | None = None,
     method: str = "geomdic",
-    pseudo_symmetry_ops: Rotation | None = None,
+    pseudo_symmetry_ops: Rotation | Sequence[Rotation | None] | None = None,
+    decide_phase: bool = False,
     reseed: bool = True,
     dic_rms: bool = False,
     min_significance: float = VARIANT_SIGNIFICANCE,
@@ -117,9 +118,13 @@ def reindex(
         Detector with one PC or one per map point, e.g. ``res.detector``
         from :func:`~kikuchipy_geomdic.calibration.refinement.refine_geometry_dic`.
     master_pattern
-        Lambert master pattern of one of the map's phases.
+        Lambert master pattern of one of the map's phases, or a list of
+        them, one per phase, each matched to the map's phase it is of
+        (:func:`~kikuchipy_geomdic.indexing.phases_to_refine.phases_to_refine`).
+        Each phase's points are refined with its master pattern; points of
+        a phase without one keep theirs (with a warning).
     energy
-        Beam energy in kV.
+        Beam energy in kV, one for every phase.
     phase
         Name or id of the map's phase to refine; default the map's only
         indexed phase. It must match the master pattern's phase
@@ -144,7 +149,22 @@ def reindex(
         variant-sensitive confidence index and the cross-variant margin;
         with ``method="kikuchipy"``: kikuchipy's best NCC).
         A variant call within the pattern's noise (significance below
-        *min_significance*) gets ``converged`` = 0.
+        *min_significance*) gets ``converged`` = 0. With a list of master
+        patterns, a list of operators, one per master pattern (None where
+        a phase has none).
+    decide_phase
+        With several master patterns and ``method="geomdic"``: refine every
+        point against every phase given, from its own orientation and,
+        where it scores poorly, from its neighbours' refined in that phase
+        (*reseed*), and keep the phase its pattern shows (compared as the
+        variants are, :func:`~kikuchipy_geomdic.indexing.orientation.compare_variants`).
+        Writes ``phase_margin`` (the significance of the call: the kept
+        phase's margin over the best other phase's, over its standard
+        error from the pattern's noise), ``phase_score_k`` (NCC in the
+        k-th phase given) and ``phase_changed`` (1 where the phase is not
+        the input's); a call below *min_significance* gets ``converged`` =
+        0. It costs one refinement of the map per phase. Default False:
+        each point keeps its phase.
     reseed
         ``method="geomdic"`` only: refine the points that score poorly
         for where they are (:func:`~kikuchipy_geomdic.indexing.orientation.poor_points`)
@@ -215,7 +235,9 @@ def reindex(
     Raises
     ------
     ValueError
-        Mismatched shapes, a master pattern of another phase, no point to
+        Mismatched shapes, a master pattern of another phase (or of no
+        phase in a point of the map), two master patterns of one phase,
+        different energies, *decide_phase* with one phase, no point to
         refine, an unknown method or option, or ``compute=False`` (use
         kikuchipy directly for a lazy result).
 
@@ -231,37 +253,33 @@ def reindex(
     >>> xmap.shape, bool(xmap.scores.min() > 0.99), int(xmap.converged.sum())
     ((3, 4), True, 12)
     """
-    todo, phase_id = _points_to_refine(
-        signal, xmap, detector, master_pattern, phase, navigation_mask, method, refine_kwargs
+    phases = phases_to_refine(xmap, master_pattern, phase, pseudo_symmetry_ops, energy)
+    todo = _points_to_refine(
+        signal, xmap, detector, phases, navigation_mask, method, refine_kwargs, decide_phase
     )
-    show_progressbar = _show_progressbar(show_progressbar)
-    mp_phase = master_pattern.phase.deepcopy()
-    if method == "kikuchipy":
-        if pseudo_symmetry_ops is not None:
-            refine_kwargs["pseudo_symmetry_ops"] = pseudo_symmetry_ops
-        out = _reindex_kikuchipy(
-            signal, xmap, detector, master_pattern, energy, todo, phase_id, mp_phase,
-            show_progressbar, refine_kwargs,
-        )  # fmt: skip
-        return _with_domain(out, pseudo_symmetry_ops, phase_id)
-    out = _reindex_geomdic(
-        signal, xmap, detector, master_pattern, energy, todo, phase_id, mp_phase,
-        pseudo_symmetry_ops=pseudo_symmetry_ops, reseed=reseed, dic_rms=dic_rms,
-        show_progressbar=show_progressbar, min_significance=min_significance,
-        refine_kwargs=refine_kwargs,
+    options = dict(
+        method=method, reseed=reseed, dic_rms=dic_rms, min_significance=min_significance,
+        min_phase_significance=min_significance, refine_kwargs=refine_kwargs,
+        show_progressbar=_show_progressbar(show_progressbar),
     )  # fmt: skip
-    # Here, not in a stage, so that a warning of domain_labels points at the caller
-    out = _with_domain(out, pseudo_symmetry_ops, phase_id)
-    if pseudo_symmetry_ops is not None and "domain" in out.prop:
-        _flag_isolated(out)
-    return out
+    stage = _decide if decide_phase else _reindex_phases
+    # One number as given (kikuchipy's route takes it as it is), a list as one
+    energy = check_energy(energy) if np.ndim(energy) else energy
+    return stage(signal, xmap, detector, phases, energy, todo, options)
 
 
 def _points_to_refine(
-    signal, xmap, detector, master_pattern, phase, navigation_mask, method, refine_kwargs
-) -> tuple[np.ndarray, int]:
+    signal, xmap, detector, phases, navigation_mask, method, refine_kwargs, decide_phase=False
+) -> np.ndarray:
     """Check :func:`reindex`'s inputs (*refine_kwargs* loses ``compute``) and
-    return the points to refine (the map's shape) and the phase's id."""
+    return the points to refine (the map's shape): those of the *phases*."""
+    if decide_phase and len(phases) < 2:
+        raise ValueError(
+            "decide_phase=True needs master patterns of two phases or more to decide between; "
+            f"one was given ({phases[0].name!r})"
+        )
+    if decide_phase and method != "geomdic":
+        raise ValueError("decide_phase=True needs method='geomdic'")
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, not {method!r}")
     if method == "geomdic":
@@ -292,9 +310,17 @@ def _points_to_refine(
             f"The detector has {detector.navigation_size} PCs, neither one nor one per "
             f"map point of {nav}"
         )
-    phase_id = check_phase(xmap, master_pattern, phase)
-
-    todo = usable_points(xmap, phase_id)
+    todo = np.zeros(xmap.shape, dtype=bool)
+    for p in phases:
+        todo |= usable_points(xmap, p.phase_id)
+    left = unrefined_phases(xmap, phases)
+    if len(phases) > 1 and left:
+        listed = ", ".join(f"{name!r} ({n} points)" for name, n in left.items())
+        warnings.warn(
+            f"No master pattern of the phases {listed}: their points keep their orientations",
+            UserWarning,
+            stacklevel=3,
+        )
     if navigation_mask is not None:
         navigation_mask = np.asarray(navigation_mask, dtype=bool)
         if navigation_mask.shape != nav:
@@ -302,7 +328,7 @@ def _points_to_refine(
         todo &= ~navigation_mask
     if not todo.any():
         raise ValueError("No point of the map can be refined (none indexed with the phase)")
-    return todo, phase_id
+    return todo
 
 
 def _show_progressbar(show_progressbar: bool | None) -> bool:

@@ -10,7 +10,7 @@ from orix.quaternion import Rotation
 from kikuchipy_geomdic.calibration._crystal import NotOneCrystalError, _one_crystal
 from kikuchipy_geomdic.calibration.solve import solve_joint
 from kikuchipy_geomdic.indexing.variants import variant_operators
-from kikuchipy_geomdic.validation import synthetic
+from kikuchipy_geomdic.validation import master_patterns, synthetic
 
 
 def _angle_to(rot: Rotation, target: Rotation, symmetry) -> np.ndarray:
@@ -218,6 +218,45 @@ def test_crystal_model_keeps_a_six_variant_maps_variants():
     # -0.75 deg off): the orientations share that rotation
     assert off.max() < 2.0
     assert np.ptp(off) < 0.1
+    assert res.converged and res.lattice.get("variants_apart", True)
+
+
+def test_lattice_near_cubic_says_the_variants_are_alike(monkeypatch):
+    """A c/a fitted within 3 standard errors of the parent's 1 makes the
+    variants alike (wrong variants pulled a domain map's lattice there, its
+    PC 1.8e-3 off at 4.8 standard errors): the calibration warns and is
+    marked not converged. Beyond, it stands."""
+    from types import SimpleNamespace
+
+    from kikuchipy_geomdic.calibration._problem import _Problem
+
+    phase = master_patterns.phase("BaTiO3")
+    ratio = phase.structure.lattice.c / phase.structure.lattice.a
+    one = SimpleNamespace(phase=phase, lattice_tolerance=0.01, pseudo_symmetry_ops=None)
+    ops = SimpleNamespace(**{**vars(one), "pseudo_symmetry_ops": variant_operators()[1:]})
+    cubic = 1 / ratio
+    assert _Problem.lattice_result(one, cubic, 7e-4)["variants_apart"]
+    assert not _Problem.lattice_result(ops, cubic * 1.002, 7e-4)["variants_apart"]
+    assert _Problem.lattice_result(ops, cubic * 1.0025, 7e-4)["variants_apart"]
+    assert _Problem.lattice_result(ops, 1.0, 5e-4)["variants_apart"]
+
+    real = _Problem.lattice_result
+
+    def near_cubic(self, stretch, standard_error):
+        return {**real(self, stretch, standard_error), "variants_apart": False}
+
+    monkeypatch.setattr(_Problem, "lattice_result", near_cubic)
+    sm = synthetic.synthetic_map(
+        "BaTiO3", (6, 6), "variants", shape=(60, 60), seed=0, start="indexed",
+        orientation_error=1.0,
+    )  # fmt: skip
+    with pytest.warns(UserWarning, match="variants look alike"):
+        res = sm.signal.refine_geometry_dic(
+            sm.start_xmap, sm.start_detector, sm.master_pattern, sm.energy, points=36,
+            pseudo_symmetry_ops=variant_operators()[1:], orientation_model="crystal",
+            show_progressbar=False,
+        )  # fmt: skip
+    assert res.lattice and not res.converged
 
 
 def test_crystal_model_errors_raised_towards_free_rotations(monkeypatch):
@@ -305,7 +344,6 @@ def test_domain_map_at_a_short_camera_length_from_users_starts():
     standard error, ends within the issue's 3e-4 (2.1e-4 compared
     high-passed; 3.05e-4 before, the two simulators' smooth misfit) and
     honest."""
-    from kikuchipy_geomdic.validation import master_patterns
 
     sm = _domain_map(
         (0.45, 0.10, 0.50), 1, synthetic.DEFAULT_PERTURBATION,
@@ -328,7 +366,6 @@ def test_domain_map_from_another_simulator_within_the_issues_bound():
     intensities across the bands, shared by every pattern of one crystal,
     left the PC 4.1e-4 off (4.1e-4 from the truth too); compared
     high-passed (``_processing.COMPARED_HIGHPASS``), 2.6e-4 and honest."""
-    from kikuchipy_geomdic.validation import master_patterns
 
     sm = _domain_map(
         (0.50, 0.20, 0.70), 0, synthetic.DEFAULT_PERTURBATION,
@@ -350,7 +387,6 @@ def test_domain_map_with_the_maps_mean_divided_out_from_users_starts():
     and the start was kept, 1.5e-2 off. With the static background's bands
     put back for the DIC stage, and the division modelled by the full
     field, the PC ends 2.9e-4 off, within its standard errors."""
-    from kikuchipy_geomdic.validation import master_patterns
 
     sm = _domain_map(
         (0.50, 0.20, 0.70), 0, synthetic.DEFAULT_PERTURBATION, static=True,
@@ -506,8 +542,8 @@ def test_domain_map_of_another_lattice_fits_its_c_over_a():
     lattice the PC is biased; fitted with it (the default tolerance), the
     PC is within 3e-4 and honest, and c/a within 3 standard errors of the
     data's. The calibration's own simulator's data: the lattice alone."""
+    from kikuchipy_geomdic.calibration._full_field import LATTICE_RESOLUTION
     from kikuchipy_geomdic.calibration.refinement import LATTICE_TOLERANCE
-    from kikuchipy_geomdic.validation import master_patterns
 
     mp = master_patterns.master_pattern("BaTiO3", kind="dynamical")
     sm = _domain_map(
@@ -524,5 +560,7 @@ def test_domain_map_of_another_lattice_fits_its_c_over_a():
     lat = res.lattice
     assert lat["determined"] and lat["tolerance"] == LATTICE_TOLERANCE
     assert abs(lat["stretch"] - 0.006) <= 3 * lat["stretch_se"], lat
+    # Never finer than a master pattern resolves the lattice
+    assert lat["stretch_se"] >= LATTICE_RESOLUTION, lat
     assert lat["c_over_a"] == pytest.approx(4.0365 * 1.006 / 3.9925, abs=3 * lat["c_over_a_se"])
     assert "c/a" in repr(res)

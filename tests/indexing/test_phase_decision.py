@@ -1,0 +1,115 @@
+"""Reindexing a map of several phases: each phase's points with its own
+master pattern, the phases in one crystal map written to .ang and orix
+h5, and with ``decide_phase`` each point's phase decided by its pattern,
+mislabelled points put right with their margins, undecidable ones
+flagged."""
+
+import numpy as np
+import pytest
+from orix import io
+
+from kikuchipy_geomdic import reindex
+
+#: Points labelled with the other phase in the start (Ni: 7, 14, 25; Si: 33)
+WRONG = np.array([7, 14, 25, 33])
+
+
+def _misorientation_deg(a, b):
+    return np.rad2deg((~a.rotations * b.rotations).angle)
+
+
+@pytest.fixture(scope="module")
+def kept(two_phase):
+    t = two_phase
+    return reindex(
+        t.signal, t.start_xmap, t.detector, t.master_patterns, 20, show_progressbar=False
+    )
+
+
+def test_each_point_keeps_its_phase_by_default(two_phase, kept, tmp_path):
+    t = two_phase
+    np.testing.assert_array_equal(kept.phase_id, t.xmap.phase_id)
+    assert kept.phases.names == ["Ni", "Si"]
+    assert kept.converged.all() and kept.refined.all()
+    assert _misorientation_deg(kept, t.xmap).max() < 0.1
+    assert "phase_margin" not in kept.prop
+    # Written and read back with every phase
+    io.save(tmp_path / "map.ang", kept)
+    io.save(tmp_path / "map.h5", kept)
+    for name in ("map.ang", "map.h5"):
+        back = io.load(tmp_path / name)
+        # .ang numbers the phases from 1: compared by name
+        names = [back.phases[int(i)].name for i in back.phase_id.reshape(-1)]
+        assert names == [kept.phases[int(i)].name for i in kept.phase_id]
+
+
+def test_one_phase_of_the_list_is_refined_as_with_its_master_pattern_alone(two_phase, kept):
+    t = two_phase
+    alone = reindex(
+        t.signal, t.start_xmap, t.detector, t.si.master_pattern, 20, phase="Si",
+        show_progressbar=False,
+    )  # fmt: skip
+    si = t.is_si
+    np.testing.assert_array_equal(alone.rotations.data[si], kept.rotations.data[si])
+    np.testing.assert_array_equal(alone.scores[si], kept.scores[si])
+
+
+@pytest.fixture(scope="module")
+def decided(two_phase):
+    t = two_phase
+    pid = t.start_xmap.phase_id.copy()
+    pid[WRONG] = 1 - pid[WRONG]
+    start = t.both(t.ni.start_xmap, t.si.start_xmap, phase_id=pid)
+    data = t.signal.data.reshape(-1, *t.signal.data.shape[-2:])
+    signal = t.signal.deepcopy()
+    # Point 2: half a Ni pattern and half a Si pattern (a phase boundary)
+    a = t.ni.signal.data.reshape(data.shape)[2].astype(float)
+    b = t.si.signal.data.reshape(data.shape)[2].astype(float)
+    signal.data.reshape(data.shape)[2] = (a - a.mean()) / a.std() + (b - b.mean()) / b.std()
+    before = start.deepcopy()
+    out = reindex(
+        signal, start, t.detector, t.master_patterns, 20, decide_phase=True,
+        show_progressbar=False,
+    )  # fmt: skip
+    np.testing.assert_array_equal(start.phase_id, before.phase_id)
+    return out
+
+
+def test_decide_phase_puts_mislabelled_points_right_with_margins(two_phase, decided):
+    t = two_phase
+    good = np.ones(t.xmap.size, dtype=bool)
+    good[2] = False
+    np.testing.assert_array_equal(decided.phase_id[good], t.xmap.phase_id[good])
+    np.testing.assert_array_equal(np.flatnonzero(decided.prop["phase_changed"]), WRONG)
+    # Measured: 58-111 at 200 counts/px
+    assert decided.prop["phase_margin"][good].min() > 20
+    assert decided.converged[good].all()
+    assert _misorientation_deg(decided, t.xmap)[good].max() < 0.1
+    # The kept phase scores better than the other
+    s0, s1 = decided.prop["phase_score_0"], decided.prop["phase_score_1"]
+    np.testing.assert_array_equal((s1 > s0)[good], t.is_si[good])
+
+
+def test_a_point_its_pattern_does_not_decide_is_flagged(decided):
+    # The half-and-half pattern: measured margin 1.1
+    assert decided.prop["phase_margin"][2] < 2.5
+    assert decided.converged[2] == 0
+
+
+def test_decide_phase_needs_two_phases_and_this_packages_solver(two_phase):
+    t = two_phase
+    with pytest.raises(ValueError, match="decide_phase=True needs master patterns of two"):
+        reindex(t.signal, t.start_xmap, t.detector, [t.ni.master_pattern], 20, phase="Ni",
+                decide_phase=True)  # fmt: skip
+    with pytest.raises(ValueError, match="decide_phase=True needs method='geomdic'"):
+        reindex(t.signal, t.start_xmap, t.detector, t.master_patterns, 20, decide_phase=True,
+                method="kikuchipy")  # fmt: skip
+
+
+def test_bad_phases_are_refused_before_any_work(two_phase):
+    t = two_phase
+    ni, si = t.master_patterns
+    with pytest.raises(ValueError, match="Two master patterns"):
+        reindex(t.signal, t.start_xmap, t.detector, [ni, si, ni], 20)
+    with pytest.raises(ValueError, match="Different energies"):
+        reindex(t.signal, t.start_xmap, t.detector, [ni, si], [20, 10])
