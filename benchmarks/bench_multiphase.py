@@ -21,9 +21,10 @@ Methods, each scored against the truth:
 - ``geomdic today``: the package as it is: ``refine_geometry_dic`` from the
   points of the majority label (``phase=``), then ``reindex`` one phase a
   call at the calibrated detector, each point keeping its label;
-- ``geomdic multi-phase``: HOOK for issue 55's core (calibration from every
-  phase, ``reindex(..., decide_phase=True)``): see :func:`package_multiphase`;
-  ``n/a`` until the core provides it;
+- ``geomdic multi-phase``: issue 55's core, plugged in through a HOOK
+  (:func:`package_multiphase`, :func:`default_hooks`): ``refine_geometry_dic``
+  from every phase's points in one solve, then ``reindex(...,
+  decide_phase=True)``; ``n/a`` where ``reindex`` has no ``decide_phase``;
 - ``from-truth limit``: every point refined from its TRUE orientation
   against each phase at the true detector (kikuchipy NM): the fraction
   where the true phase scores best bounds any decision by NCC on these
@@ -35,7 +36,9 @@ the true phase's symmetry, deg) of the points with the right phase (mean,
 median, count over 5 deg, and ``rel mean``: the mean with the map's common
 rotation removed, what an error of the detector angles leaves, over the
 points within 5 deg), the largest PC error over the map of the detector
-used, and the wall time (s).
+used, the wall time (s), and where the method flags points not to trust
+(``converged`` 0) the flagged percentage and the number of points with a
+wrong phase left trusted (``wrong``).
 
 Usage::
 
@@ -107,7 +110,13 @@ def score(tp, xmap: CrystalMap) -> dict:
     e = np.linalg.norm(dev[right], axis=1)
     near = dev[right][e < 5]
     rel = np.linalg.norm(near - near.mean(axis=0), axis=1).mean() if near.size else np.nan
+    flagged = wrong_trusted = None
+    if "converged" in xmap.prop:
+        trusted = xmap.prop["converged"] == 1
+        flagged, wrong_trusted = 1 - trusted.mean(), int((~right & trusted).sum())
     return dict(
+        flagged=flagged,
+        wrong_trusted=wrong_trusted,
         right=right.mean(),
         mean=e.mean() if e.size else np.nan,
         median=np.median(e) if e.size else np.nan,
@@ -175,6 +184,7 @@ def reindex_per_label(tp, detector) -> CrystalMap:
     nav = tp.geometry.navigation_shape
     label = tp.start_xmap.phase_id
     rot = tp.start_xmap.rotations.data.copy()
+    converged = np.zeros(label.size, dtype=int)
     for pid, name in enumerate(tp.phase_names):
         if not (label == pid).any():
             continue
@@ -183,10 +193,11 @@ def reindex_per_label(tp, detector) -> CrystalMap:
             phase=name, navigation_mask=(label != pid).reshape(nav), show_progressbar=False,
         )  # fmt: skip
         rot[label == pid] = out.rotations.data[label == pid]
+        converged[label == pid] = out.prop["converged"][label == pid]
     x = tp.start_xmap
     return CrystalMap(
-        rotations=type(x.rotations)(rot), phase_id=label, x=x.x, y=x.y,
-        phase_list=x.phases.deepcopy(), scan_unit="um",
+        rotations=Rotation(rot), phase_id=label, x=x.x, y=x.y,
+        phase_list=x.phases.deepcopy(), prop={"converged": converged}, scan_unit="um",
     )  # fmt: skip
 
 
@@ -283,9 +294,12 @@ def _line(pair, seed, r) -> str:
         return head + "   n/a (hook: package_multiphase, default_hooks)"
     if r.get("limit"):
         return head + f" {100 * r['right']:6.1f} {'':>39s} {r['pc']:9.2e} {r['t']:7.1f}"
+    flags = "        -     -"
+    if r["flagged"] is not None:
+        flags = f" {100 * r['flagged']:8.1f} {r['wrong_trusted']:5d}"
     return head + (
         f" {100 * r['right']:6.1f} {r['mean']:9.3f} {r['median']:9.3f} {r['over5']:9d}"
-        f" {r['rel']:9.3f} {r['pc']:9.2e} {r['t']:7.1f}"
+        f" {r['rel']:9.3f} {r['pc']:9.2e} {r['t']:7.1f}{flags}"
     )
 
 
@@ -310,7 +324,8 @@ def main(argv=None) -> None:
     hooks = default_hooks()
     print(
         f"{'pair':<19s} {'seed':>4s} {'method':<23s} {'phase%':>6s} {'err mean':>9s} "
-        f"{'median':>9s} {'n > 5deg':>9s} {'rel mean':>9s} {'PC err':>9s} {'time s':>7s}"
+        f"{'median':>9s} {'n > 5deg':>9s} {'rel mean':>9s} {'PC err':>9s} {'time s':>7s} "
+        f"{'flagged%':>8s} {'wrong':>5s}"
     )
     for pair in args.pairs:
         for seed in args.seeds:
