@@ -86,7 +86,7 @@ def main(argv=None) -> None:
     # The c axis: de-ebsd's crystal turned 90 deg about x (c to y)
     turn = Rotation.from_axes_angles([1, 0, 0], np.pi / 2)
     b = master_patterns.master_pattern("Fe_bct", kind="de-ebsd")
-    turned = patterns(b, rot * turn, det)
+    turned = patterns(b, turn * rot, det)  # a crystal-frame operator acts on the left
     print(
         f"Fe_bct c axis: ebsdsim vs de-ebsd same frame {ncc(*sim['Fe_bct']).mean():.4f}, "
         f"de-ebsd's c turned to y {ncc(sim['Fe_bct'][0], turned).mean():.4f}"
