@@ -43,6 +43,7 @@ wrong phase left trusted (``wrong``).
 Usage::
 
     python benchmarks/bench_multiphase.py --seeds 0 1 --side 15 --size 80
+    python benchmarks/bench_multiphase.py --pairs ferrite+martensite --size 60 --dose 30
 """
 
 from __future__ import annotations
@@ -54,6 +55,7 @@ import sys
 import time
 import warnings
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -64,6 +66,7 @@ from orix.quaternion import Rotation
 from kikuchipy_geomdic.calibration.refinement import refine_geometry_dic
 from kikuchipy_geomdic.geometry import rotation_vectors
 from kikuchipy_geomdic.indexing.reindex import quiet, reindex
+from kikuchipy_geomdic.validation.camera import MODERATE
 from kikuchipy_geomdic.validation.multiphase import PAIRS, two_phase_map
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -262,6 +265,7 @@ def run(pair: str, seed: int, args, hooks) -> list[dict]:
     tp = two_phase_map(
         PAIRS[pair], (args.side, args.side), (args.size, args.size), mislabel=args.mislabel,
         data=args.data, calibrate=args.calibrate, seed=seed,
+        camera=replace(MODERATE, dose=args.dose),
     )  # fmt: skip
     rows = [dict(method="vendor start", t=time.perf_counter() - t0,
                  pc=_pc_error(tp, tp.start_detector), **score(tp, tp.start_xmap))]  # fmt: skip
@@ -310,6 +314,7 @@ def main(argv=None) -> None:
     p.add_argument("--side", type=int, default=15)
     p.add_argument("--size", type=int, default=80)
     p.add_argument("--mislabel", type=float, default=0.05)
+    p.add_argument("--dose", type=float, default=150.0, help="the camera's counts per pixel")
     p.add_argument("--data", default="de-ebsd", help="master patterns of the data (kind)")
     p.add_argument("--calibrate", default="dynamical", help="master patterns to calibrate with")
     p.add_argument("--log", type=Path, help="also write the output to this file")
