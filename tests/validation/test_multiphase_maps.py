@@ -1,4 +1,5 @@
-"""Tests of the realistic two-phase maps."""
+"""Tests of the realistic two-phase maps (validation.multiphase; named apart from
+tests/calibration/test_multiphase.py, as pytest imports test files by basename)."""
 
 import numpy as np
 import pytest
