@@ -1,4 +1,4 @@
-"""Master patterns and phases of silicon, tetragonal BaTiO3 and nickel.
+"""Master patterns and phases of silicon, tetragonal BaTiO3, nickel and iron.
 
 Master patterns
 ---------------
@@ -8,7 +8,10 @@ for silicon, tetragonal BaTiO3, nickel or any orix
 package data, or kinematical, built here with diffsims/kikuchipy for any
 phase. For nickel there is a second, independent dynamical master pattern
 (``kind="emsoft"``), so that "experimental" patterns can be simulated with
-one simulator and calibrated with another.
+one simulator and calibrated with another; for BaTiO3 and the iron phases
+ferrite (``"Fe_bcc"``), austenite (``"Fe_fcc"``) and bct martensite
+(``"Fe_bct"``) the second simulator is de-ebsd (``kind="de-ebsd"``) or
+ebsdsim (``kind="ebsdsim"``), whichever is not the default.
 
 Data and credits
 ----------------
@@ -33,6 +36,15 @@ Data and credits
   Lambert 401 x 401, dmin 0.05 nm, the 20 kV energy bin: another
   simulator for realistic test data (120 px patterns correlate 0.92 with
   de-ebsd's; ebsdsim's and EMsoft's Ni 0.92).
+- ``data/Fe_bcc_dynamical.npz``, ``Fe_fcc_dynamical.npz``,
+  ``Fe_bct_dynamical.npz``: ebsdsim 0.2.4 (MIT), made as the Ni one
+  (Lambert 201 x 201, float32) from ``data/Fe_bcc.cif`` (Im-3m,
+  a = 2.8665 angstrom), ``Fe_fcc.cif`` (Fm-3m, a = 3.60 angstrom) and
+  ``Fe_bct.cif`` (I4/mmm, a = 2.85, c = 2.92125 angstrom, c/a = 1.025);
+  ``data/Fe_*_deebsd.npz`` (``kind="de-ebsd"``): the same CIFs computed
+  with de-ebsd 0.2.1 (GPL-3.0-or-later), the other simulator of
+  realistic multi-phase test data. Settings, times and the two
+  simulators' agreement: ``data/README.md``.
 - ``kind="emsoft"``: kikuchipy's shipped EMsoft Ni master pattern
   (``kikuchipy.data.nickel_ebsd_master_pattern_small``, 20 kV, 401 x 401,
   uint8; simulated with EMsoft, Callahan and De Graef, Microsc.
@@ -56,20 +68,31 @@ from orix.crystal_map import Phase
 __all__ = ["phase", "master_pattern", "stretched"]
 
 _DATA = resources.files("kikuchipy_geomdic") / "data"
+#: The iron phases, each shipped from ebsdsim ("dynamical", the
+#: calibration's) and from de-ebsd (the other simulator of test data)
+_IRON = ("Fe_bcc", "Fe_fcc", "Fe_bct")
 #: File and simulator of each shipped dynamical master pattern by kind:
-#: "dynamical" is the best one, "ebsdsim" ebsdsim's (the same for Si and Ni)
+#: "dynamical" is the best one, "ebsdsim" ebsdsim's (the same for Si, Ni
+#: and iron), "de-ebsd" de-ebsd's
 _DYNAMICAL_FILES = {
     "dynamical": {
         "Si": ("Si_dynamical.npz", "ebsdsim 0.2.4"),
         "Ni": ("Ni_dynamical.npz", "ebsdsim 0.2.4"),
         "BaTiO3": ("BaTiO3_dynamical.npz", "de-ebsd 0.2.1"),
+        **{k: (f"{k}_dynamical.npz", "ebsdsim 0.2.4") for k in _IRON},
     },
     "ebsdsim": {
         "Si": ("Si_dynamical.npz", "ebsdsim 0.2.4"),
         "Ni": ("Ni_dynamical.npz", "ebsdsim 0.2.4"),
         "BaTiO3": ("BaTiO3_ebsdsim.npz", "ebsdsim 0.2.4"),
+        **{k: (f"{k}_dynamical.npz", "ebsdsim 0.2.4") for k in _IRON},
+    },
+    "de-ebsd": {
+        "BaTiO3": ("BaTiO3_dynamical.npz", "de-ebsd 0.2.1"),
+        **{k: (f"{k}_deebsd.npz", "de-ebsd 0.2.1") for k in _IRON},
     },
 }
+_KINDS = ("auto", "dynamical", "ebsdsim", "de-ebsd", "kinematical", "emsoft")
 _PHASES = {
     "si": "Si",
     "silicon": "Si",
@@ -77,6 +100,12 @@ _PHASES = {
     "bto": "BaTiO3",
     "ni": "Ni",
     "nickel": "Ni",
+    "fe_bcc": "Fe_bcc",
+    "ferrite": "Fe_bcc",
+    "fe_fcc": "Fe_fcc",
+    "austenite": "Fe_fcc",
+    "fe_bct": "Fe_bct",
+    "martensite": "Fe_bct",
 }
 
 
@@ -85,17 +114,19 @@ def _phase_key(name: str) -> str:
         return _PHASES[name.lower()]
     except KeyError:
         raise ValueError(
-            f"Unknown phase {name!r}: use 'Si', 'BaTiO3', 'Ni' or pass an orix Phase"
+            f"Unknown phase {name!r}: use 'Si', 'BaTiO3', 'Ni', 'Fe_bcc' (ferrite), "
+            "'Fe_fcc' (austenite), 'Fe_bct' (martensite) or pass an orix Phase"
         ) from None
 
 
 def phase(name: str) -> Phase:
-    """Return the orix phase of silicon, tetragonal BaTiO3 or nickel.
+    """Return the orix phase of silicon, tetragonal BaTiO3, nickel or iron.
 
     Parameters
     ----------
     name
-        "Si", "BaTiO3" or "Ni" (case-insensitive).
+        "Si", "BaTiO3", "Ni", "Fe_bcc" (or "ferrite"), "Fe_fcc" (or
+        "austenite") or "Fe_bct" (or "martensite"), case-insensitive.
 
     Returns
     -------
@@ -111,6 +142,9 @@ def phase(name: str) -> Phase:
     >>> p = phase("Ni")
     >>> p.point_group.name, p.structure.lattice.a
     ('m-3m', 3.524)
+    >>> p = phase("martensite")
+    >>> p.name, p.point_group.name, p.structure.lattice.c
+    ('Fe_bct', '4/mmm', 2.92125)
     """
     key = _phase_key(name)
     with resources.as_file(_DATA / f"{key}.cif") as path:
@@ -131,13 +165,14 @@ def master_pattern(
     Parameters
     ----------
     phase_or_name
-        "Si", "BaTiO3", "Ni" or an orix phase (lattice parameters in
+        A name of :func:`phase` or an orix phase (lattice parameters in
         angstrom).
     kind
-        "dynamical" (package data at 20 kV only: Si and Ni computed with
-        ebsdsim, BaTiO3 with de-ebsd), "ebsdsim" (the same for Si and Ni;
-        for BaTiO3 a 401 x 401 ebsdsim pattern, a second simulator for
-        realistic test data), "emsoft" (Ni only: kikuchipy's shipped EMsoft
+        "dynamical" (package data at 20 kV only: Si, Ni and iron computed
+        with ebsdsim, BaTiO3 with de-ebsd), "ebsdsim" (the same for Si, Ni
+        and iron; for BaTiO3 a 401 x 401 ebsdsim pattern, a second
+        simulator for realistic test data), "de-ebsd" (BaTiO3 and iron:
+        de-ebsd's, for iron the second simulator), "emsoft" (Ni only: kikuchipy's shipped EMsoft
         master pattern, 20 kV, 401 x 401, to simulate "experimental"
         patterns with another simulator than the one used to calibrate),
         "kinematical" (any phase, any energy), or "auto": dynamical
@@ -173,15 +208,16 @@ def master_pattern(
     (2, 401, 401)
     >>> master_pattern("Ni", kind="emsoft").metadata.General.title
     'Ni dynamical (EMsoft, kikuchipy data)'
+    >>> master_pattern("ferrite", kind="de-ebsd").metadata.General.title
+    'Fe_bcc dynamical (de-ebsd 0.2.1)'
     """
-    if kind not in ("auto", "dynamical", "ebsdsim", "kinematical", "emsoft"):
-        raise ValueError(
-            f"kind must be 'auto', 'dynamical', 'ebsdsim', 'kinematical' or 'emsoft', not {kind!r}"
-        )
+    if kind not in _KINDS:
+        raise ValueError(f"kind must be one of {', '.join(map(repr, _KINDS))}, not {kind!r}")
     if isinstance(phase_or_name, Phase):
-        if kind in ("dynamical", "ebsdsim", "emsoft"):
+        if kind in ("dynamical", "ebsdsim", "de-ebsd", "emsoft"):
             raise ValueError(
-                "Dynamical master patterns exist only for 'Si', 'BaTiO3' and 'Ni' (EMsoft: 'Ni')"
+                "Dynamical master patterns exist only for the named phases of phase() "
+                "(EMsoft: 'Ni')"
             )
         return _kinematical(phase_or_name, energy, half_size, min_dspacing).deepcopy()
     key = _phase_key(phase_or_name)
@@ -194,13 +230,15 @@ def master_pattern(
     if kind == "kinematical":
         return _kinematical_named(key, energy, half_size, min_dspacing).deepcopy()
     if energy != 20:
-        if kind in ("dynamical", "ebsdsim"):
+        if kind in ("dynamical", "ebsdsim", "de-ebsd"):
             raise ValueError("The shipped dynamical master patterns are for 20 kV")
         return _kinematical_named(key, energy, half_size, min_dspacing).deepcopy()
-    return _dynamical(key, "ebsdsim" if kind == "ebsdsim" else "dynamical").deepcopy()
+    if kind == "de-ebsd" and key not in _DYNAMICAL_FILES[kind]:
+        raise ValueError(f"No de-ebsd master pattern of {key!r} is shipped")
+    return _dynamical(key, "dynamical" if kind == "auto" else kind).deepcopy()
 
 
-@functools.lru_cache(maxsize=4)
+@functools.lru_cache(maxsize=8)
 def _dynamical(key: str, kind: str = "dynamical") -> EBSDMasterPattern:
     name, simulator = _DYNAMICAL_FILES[kind][key]
     with resources.as_file(_DATA / name) as path:

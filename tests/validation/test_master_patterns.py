@@ -111,3 +111,66 @@ def test_stretched_master_pattern_moves_the_bands_with_the_c_axis():
     )
     with pytest.raises(ValueError, match="stretch"):
         master_patterns.stretched(mp, 0)
+
+
+class TestIron:
+    """Ferrite, austenite and bct martensite: ebsdsim's (the calibration's)
+    and de-ebsd's (the other simulator of test data) master patterns."""
+
+    @pytest.mark.parametrize(
+        "name, alias, point_group, c",
+        [
+            ("Fe_bcc", "ferrite", "m-3m", 2.8665),
+            ("Fe_fcc", "austenite", "m-3m", 3.60),
+            ("Fe_bct", "martensite", "4/mmm", 2.92125),
+        ],
+    )
+    def test_phases(self, name, alias, point_group, c):
+        p = master_patterns.phase(alias)
+        assert p.name == name == master_patterns.phase(name.upper()).name
+        assert p.point_group.name == point_group
+        assert p.structure.lattice.c == pytest.approx(c)
+
+    @pytest.mark.parametrize("name", ["Fe_bcc", "Fe_fcc", "Fe_bct"])
+    def test_files_and_projection(self, name):
+        from importlib import resources
+
+        from kikuchipy.detectors import EBSDDetector
+        from orix.quaternion import Rotation
+
+        data = resources.files("kikuchipy_geomdic") / "data"
+        cif = (data / f"{name}.cif").read_text()
+        det = EBSDDetector((40, 40), pc=(0.5, 0.3, 0.6), sample_tilt=70)
+        rot = Rotation.from_euler(np.deg2rad([[10, 35, 60], [200, 80, 5]]))
+        projected = []
+        for kind, simulator in (("dynamical", "ebsdsim 0.2.4"), ("de-ebsd", "de-ebsd 0.2.1")):
+            mp = master_patterns.master_pattern(name, kind=kind)
+            assert mp.metadata.General.title == f"{name} dynamical ({simulator})"
+            assert mp.phase.name == name and mp.data.dtype == np.float32
+            assert mp.projection == "lambert" and mp.hemisphere == "both"
+            # Centrosymmetric: both hemispheres alike
+            assert np.allclose(mp.data[0], mp.data[1], rtol=1e-3)
+            stem = "dynamical" if kind == "dynamical" else "deebsd"
+            with resources.as_file(data / f"{name}_{stem}.npz") as f:
+                npz = np.load(f)
+                assert str(npz["cif"]) == cif and float(npz["energy"]) == 20
+                assert simulator.split()[0] in str(npz["source"])
+            p = mp.get_patterns(rot, det, energy=20, compute=True, show_progressbar=False)
+            projected.append(np.asarray(p, dtype=float).reshape(2, -1))
+        # The two simulators show the same bands at the same orientation
+        for a, b in zip(*projected, strict=True):
+            assert np.corrcoef(a, b)[0, 1] > 0.6
+
+    def test_kinds(self):
+        a = master_patterns.master_pattern("ferrite")
+        assert np.array_equal(
+            a.data, master_patterns.master_pattern("Fe_bcc", kind="ebsdsim").data
+        )
+        bto = master_patterns.master_pattern("BaTiO3", kind="de-ebsd")
+        assert np.array_equal(bto.data, master_patterns.master_pattern("BaTiO3").data)
+        with pytest.raises(ValueError, match="de-ebsd"):
+            master_patterns.master_pattern("Ni", kind="de-ebsd")
+        with pytest.raises(ValueError, match="20 kV"):
+            master_patterns.master_pattern("Fe_bct", kind="de-ebsd", energy=15)
+        kin = master_patterns.master_pattern("Fe_bct", kind="kinematical", half_size=30)
+        assert kin.phase.point_group.name == "4/mmm"
