@@ -357,28 +357,9 @@ def _phase_figure(xmap, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import numpy as np
-    from matplotlib.colors import ListedColormap
 
-    shape = xmap.shape if len(xmap.shape) == 2 else (1, xmap.size)
-    ids = [int(i) for i, _ in xmap.phases if i >= 0]
-    index = np.full(xmap.size, np.nan)
-    for k, i in enumerate(ids):
-        index[xmap.phase_id == i] = k
-    colours = plt.get_cmap("tab10").colors[: len(ids)]
-    fig, ax = plt.subplots(figsize=(6, 6 * shape[0] / max(shape[1], 1) + 0.8))
-    ax.imshow(index.reshape(shape), cmap=ListedColormap(colours), vmin=-0.5,
-              vmax=len(ids) - 0.5, interpolation="nearest")  # fmt: skip
-    flagged = np.flatnonzero(np.asarray(xmap.prop.get("converged", 1)) == 0)
-    rows, cols = np.unravel_index(flagged, shape)
-    ax.scatter(cols, rows, marker="x", c="k", s=30, label="not converged / not decided")
-    handles = [plt.Rectangle((0, 0), 1, 1, color=c) for c in colours]
-    labels = [xmap.phases[i].name for i in ids]
-    if flagged.size:
-        handles.append(ax.collections[0])
-        labels.append(f"not to trust ({flagged.size})")
-    ax.legend(handles, labels, loc="upper left", bbox_to_anchor=(1.01, 1), fontsize=8)
-    ax.set_title("Phases")
-    ax.set_axis_off()
+    from kikuchipy_geomdic.plotting import plot_phases
+
+    fig = plot_phases(xmap)
     fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)

@@ -6,8 +6,9 @@ arrays, the package's result objects or a study table
 (:attr:`~kikuchipy_geomdic.validation.study.PerturbationStudy.table`).
 
 :mod:`~kikuchipy_geomdic.plotting.calibration` (a calibration's figures),
-:mod:`~kikuchipy_geomdic.plotting.study` (the perturbation study's) and
+:mod:`~kikuchipy_geomdic.plotting.study` (the perturbation study's),
 :mod:`~kikuchipy_geomdic.plotting.variants` (a variant-sensitive
+reindexing's) and :mod:`~kikuchipy_geomdic.plotting.phases` (a multi-phase
 reindexing's); every ``plot_*`` function is exported here.
 
 Layer 5 (plotting): may import geometry, io, patterns, indexing.
@@ -19,6 +20,7 @@ from kikuchipy_geomdic.plotting.calibration import (
     plot_displacement_fields,
     plot_sensitivity,
 )
+from kikuchipy_geomdic.plotting.phases import plot_phases
 from kikuchipy_geomdic.plotting.study import (
     plot_errors,
     plot_heatmaps,
@@ -37,5 +39,6 @@ __all__ = [
     "plot_errors",
     "plot_normalised_errors",
     "plot_variants",
+    "plot_phases",
     "VARIANT_COLOURS",
 ]

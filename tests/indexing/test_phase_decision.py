@@ -113,3 +113,29 @@ def test_bad_phases_are_refused_before_any_work(two_phase):
         reindex(t.signal, t.start_xmap, t.detector, [ni, si, ni], 20)
     with pytest.raises(ValueError, match="Different energies"):
         reindex(t.signal, t.start_xmap, t.detector, [ni, si], [20, 10])
+
+
+def test_plot_phases_marks_flagged_and_wrong_points():
+    """The phase figure counts the points not to trust and, given the
+    truth, those of another phase; the map is not modified."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from orix.crystal_map import CrystalMap, Phase, PhaseList
+    from orix.quaternion import Rotation
+
+    from kikuchipy_geomdic.plotting import plot_phases
+
+    phases = PhaseList([Phase(n, point_group="m-3m") for n in ("ferrite", "austenite")])
+    converged = np.ones(12)
+    converged[[1, 5]] = 0
+    xmap = CrystalMap(
+        Rotation.identity((12,)), phase_id=np.arange(12) % 2, phase_list=phases,
+        x=np.arange(12) % 4, y=np.arange(12) // 4, prop={"converged": converged},
+    )  # fmt: skip
+    truth = np.arange(12) % 2
+    truth[[0, 7, 9]] = 1 - truth[[0, 7, 9]]
+    fig = plot_phases(xmap, truth=truth)
+    labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert labels == ["ferrite", "austenite", "not to trust (2)", "wrong phase (3)"]
+    assert np.array_equal(xmap.prop["converged"], converged)
