@@ -285,6 +285,12 @@ def run(pair: str, seed: int, args, hooks) -> list[dict]:
         rows.append(dict(method="geomdic multi-phase", na=True))
     else:
         timed("geomdic multi-phase", lambda: package_multiphase(tp, *hooks))
+        # decide_phase alone at kikuchipy's @truth detector: its time beside
+        # kikuchipy's refinement per phase and merge
+        mps = [tp.master_patterns[n] for n in tp.phase_names]
+        timed("geomdic decide @truth",
+              lambda: hooks[1](tp.signal, tp.start_xmap, tp.detector, mps, tp.energy),
+              tp.detector)  # fmt: skip
     t = time.perf_counter()
     limit = from_truth_limit(tp)
     rows.append(dict(method="from-truth limit", t=time.perf_counter() - t, right=limit,
