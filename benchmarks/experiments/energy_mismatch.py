@@ -19,8 +19,6 @@ import sys
 import warnings
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/
 
 from kikuchipy_geomdic import refine_geometry_dic  # noqa: E402
