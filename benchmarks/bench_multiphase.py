@@ -234,6 +234,11 @@ def package_multiphase(tp, calibrate: Calibrate, decide: Decide) -> tuple[Crysta
     return decide(tp.signal, tp.start_xmap, detector, mps, tp.energy), detector
 
 
+#: The package's multi-phase calibrations run by :func:`default_hooks`'
+#: ``calibrate``, in order (their standard errors for the honesty row)
+CALIBRATIONS: list = []
+
+
 def default_hooks() -> tuple[Calibrate, Decide] | None:
     """The package's own multi-phase functions, once ``reindex`` takes
     ``decide_phase`` (the core of issue 55); None before. Adapt the calls
@@ -242,9 +247,11 @@ def default_hooks() -> tuple[Calibrate, Decide] | None:
         return None
 
     def calibrate(signal, xmap, detector, mps, energy):
-        return refine_geometry_dic(
+        res = refine_geometry_dic(
             signal, xmap, detector, mps, energy, points=100, show_progressbar=False
-        ).detector
+        )
+        CALIBRATIONS.append(res)
+        return res.detector
 
     def decide(signal, xmap, detector, mps, energy):
         return reindex(signal, xmap, detector, mps, energy, decide_phase=True,
@@ -285,6 +292,13 @@ def run(pair: str, seed: int, args, hooks) -> list[dict]:
         rows.append(dict(method="geomdic multi-phase", na=True))
     else:
         timed("geomdic multi-phase", lambda: package_multiphase(tp, *hooks))
+        if CALIBRATIONS:
+            # The calibration's PC at the map's reference point against its
+            # standard errors: honest where every |error| <= 3 of them
+            res, truth = CALIBRATIONS[-1], tp.geometry.as_dict()
+            err = [res.parameters[k] - truth[k] for k in ("pcx", "pcy", "pcz")]
+            se = [res.standard_errors[k] for k in ("pcx", "pcy", "pcz")]
+            rows.append(dict(method="joint calibration", calib=(err, se)))
         # decide_phase alone at kikuchipy's @truth detector: its time beside
         # kikuchipy's refinement per phase and merge
         mps = [tp.master_patterns[n] for n in tp.phase_names]
@@ -300,6 +314,13 @@ def run(pair: str, seed: int, args, hooks) -> list[dict]:
 
 def _line(pair, seed, r) -> str:
     head = f"{pair:<19s} {seed:4d} {r['method']:<23s}"
+    if r.get("calib"):
+        err, se = r["calib"]
+        z = max(abs(e) / s for e, s in zip(err, se))
+        return head + (
+            "   PC err " + " ".join(f"{e:+.1e}" for e in err) + " | se "
+            + " ".join(f"{s:.1e}" for s in se) + f" | max z {z:.1f}"
+        )  # fmt: skip
     if r.get("na"):
         return head + "   n/a (hook: package_multiphase, default_hooks)"
     if r.get("limit"):
