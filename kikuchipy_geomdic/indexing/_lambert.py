@@ -212,25 +212,11 @@ def _project(q, dc, upper, lower, scale, value, jac, with_jac, gradient=None, st
 SUMS = 18
 
 
-@nb.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+@nb.njit(cache=True, nogil=True)
 def _direction_columns(pc, nrows, ncols, om):
     """:func:`_direction_cosines` as three rows (3, n): x, y and z of every
     pixel, the layout :func:`_step_sums` loads into vector registers."""
-    out = np.empty((3, nrows * ncols))
-    for r in range(nrows):
-        for c in range(ncols):
-            x = ((c + 0.5) - pc[0] * ncols) / nrows
-            y = (pc[1] * nrows - (r + 0.5)) / nrows
-            z = pc[2]
-            k = r * ncols + c
-            sx = om[0, 0] * x + om[0, 1] * y + om[0, 2] * z
-            sy = om[1, 0] * x + om[1, 1] * y + om[1, 2] * z
-            sz = om[2, 0] * x + om[2, 1] * y + om[2, 2] * z
-            norm = math.sqrt(sx * sx + sy * sy + sz * sz)
-            out[0, k] = sx / norm
-            out[1, k] = sy / norm
-            out[2, k] = sz / norm
-    return out
+    return np.ascontiguousarray(_direction_cosines(pc, nrows, ncols, om).T)
 
 
 # error_model="numpy": Python's check of every division for zero (a

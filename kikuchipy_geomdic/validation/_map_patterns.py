@@ -22,21 +22,11 @@ def _signal(simulator, rot, detector, geometry, energy, noise, labels, lazy) -> 
     :func:`degrade_patterns`, or a camera and a seed."""
     nav = geometry.navigation_shape
     camera = noise.get("camera")
-    if camera is None:
-        brightness = np.ones(labels.size)
-    else:
-        draws = np.random.default_rng([noise["seed"], 1]).uniform(-1, 1, int(labels.max()) + 1)
-        brightness = 1 + camera.brightness * draws[labels]
+    brightness = _brightness(camera, noise.get("seed"), labels)
     data = _simulate_map(
         simulator, rot.data.reshape(nav + (4,)), detector.pc, geometry, energy, noise, brightness
     )
-    dy, dx = geometry.step_sizes
-    axes = [
-        {"name": "y", "size": nav[0], "scale": dy, "units": "um"},
-        {"name": "x", "size": nav[1], "scale": dx, "units": "um"},
-        {"name": "dy", "size": geometry.shape[0], "scale": 1, "units": "px"},
-        {"name": "dx", "size": geometry.shape[1], "scale": 1, "units": "px"},
-    ]
+    axes = _axes(geometry)
     if lazy:
         signal = LazyEBSD(data, axes=axes)
     else:
@@ -44,6 +34,26 @@ def _signal(simulator, rot, detector, geometry, energy, noise, labels, lazy) -> 
     if camera is not None:
         camera.process(signal)
     return signal
+
+
+def _brightness(camera, seed, labels: np.ndarray) -> np.ndarray:
+    """Each point's brightness (N,): one uniform draw per grain of *labels*
+    scaled by the *camera*'s brightness variation, or ones without one."""
+    if camera is None:
+        return np.ones(labels.size)
+    draws = np.random.default_rng([seed, 1]).uniform(-1, 1, int(labels.max()) + 1)
+    return 1 + camera.brightness * draws[labels]
+
+
+def _axes(geometry) -> list[dict]:
+    """The axes of a map's signal: navigation in um, the detector in px."""
+    nav, (dy, dx) = geometry.navigation_shape, geometry.step_sizes
+    return [
+        {"name": "y", "size": nav[0], "scale": dy, "units": "um"},
+        {"name": "x", "size": nav[1], "scale": dx, "units": "um"},
+        {"name": "dy", "size": geometry.shape[0], "scale": 1, "units": "px"},
+        {"name": "dx", "size": geometry.shape[1], "scale": 1, "units": "px"},
+    ]
 
 
 def _refine_orientations(signal, xmap, detector, master_pattern, energy) -> Rotation:

@@ -29,7 +29,7 @@ from orix.quaternion import Rotation
 from kikuchipy_geomdic.geometry import MapGeometry
 from kikuchipy_geomdic.indexing.reindex import quiet
 from kikuchipy_geomdic.validation import master_patterns, synthetic
-from kikuchipy_geomdic.validation._map_patterns import _simulate_map
+from kikuchipy_geomdic.validation._map_patterns import _axes, _brightness, _simulate_map
 from kikuchipy_geomdic.validation.camera import MODERATE, Camera
 from kikuchipy_geomdic.validation.orientations import (
     _random_rotations,
@@ -276,8 +276,7 @@ def _record(sims, names, rot, true_phase, grain, detector, geometry, energy, cam
     """The camera's processed map: each point's counts from its phase's
     simulator, then the user's background removal over the whole map."""
     nav = geometry.navigation_shape
-    draws = np.random.default_rng([seed, 1]).uniform(-1, 1, int(grain.max()) + 1)
-    brightness = 1 + camera.brightness * draws[grain]
+    brightness = _brightness(camera, seed, grain)
     quats = rot.data.reshape(nav + (4,))
     noise = dict(camera=camera, seed=seed)
     # Counts of every point from both simulators: the noise of a point
@@ -291,14 +290,7 @@ def _record(sims, names, rot, true_phase, grain, detector, geometry, energy, cam
     ]
     is_b = true_phase.reshape(nav + (1, 1)) == 1
     data = np.where(is_b, counts[1], counts[0])
-    dy, dx = geometry.step_sizes
-    axes = [
-        {"name": "y", "size": nav[0], "scale": dy, "units": "um"},
-        {"name": "x", "size": nav[1], "scale": dx, "units": "um"},
-        {"name": "dy", "size": geometry.shape[0], "scale": 1, "units": "px"},
-        {"name": "dx", "size": geometry.shape[1], "scale": 1, "units": "px"},
-    ]
-    signal = EBSD(data, axes=axes)
+    signal = EBSD(data, axes=_axes(geometry))
     camera.process(signal)
     return signal
 
