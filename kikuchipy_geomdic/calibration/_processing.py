@@ -324,7 +324,7 @@ class _Processing:
             raw = x * c
             raw += 1
             raw *= lobe
-            den = np.ones((1, 1) + self.shape)
+            den = np.ones((1, 1) + self.shape, dtype=x.dtype)
             if self.static:
                 den = self._blur(den * (raw.mean(axis=0, keepdims=True) if self.ghost else lobe))
             x = self._blur(raw)
@@ -334,8 +334,10 @@ class _Processing:
                 x /= low
         else:
             # The faint-pattern limit of the same: the background's blur
-            # divided out of the blurred modulation, the ghost subtracted
-            den = self._blur(lobe * np.ones((1, 1) + self.shape))
+            # divided out of the blurred modulation, the ghost subtracted;
+            # in the patterns' type (a float64 divisor made the estimation's
+            # float32 candidates float64, their low-pass twice the cost)
+            den = self._blur(lobe * np.ones((1, 1) + self.shape, dtype=x.dtype))
             x = self._blur(lobe * x) / den
             if self.ghost:
                 x = x - x.mean(axis=0, keepdims=True)
