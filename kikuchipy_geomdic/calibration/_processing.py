@@ -16,6 +16,7 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass, field, replace
 
+import numba as nb
 import numpy as np
 from kikuchipy.filters import Window
 from kikuchipy.signals import EBSD
@@ -394,6 +395,30 @@ def _standardised(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return x, sd
 
 
+@nb.njit(cache=True, nogil=True, fastmath=True)
+def _mean_ncc(x, e):
+    """The mean over the patterns of the NCC of *x* (N, P) with the
+    standardised *e* (N, P), float64 sums; a constant pattern's is 0. Two
+    passes over each pattern: standardising *x* first, then a product and
+    its mean took six and were a third of the high-pass' choice."""
+    n, p = x.shape
+    total = 0.0
+    for i in range(n):
+        mean = 0.0
+        for j in range(p):
+            mean += x[i, j]
+        mean /= p
+        ss = 0.0
+        dot = 0.0
+        for j in range(p):
+            v = x[i, j] - mean
+            ss += v * v
+            dot += v * e[i, j]
+        if ss > 0:
+            total += dot / np.sqrt(ss * p)
+    return total / n
+
+
 def _estimate_processing(problem, arrays, geometry, rotations) -> _Processing:
     """The model of what was done to the patterns (:class:`_Processing`)
     that correlates best with them, one property after the other: the
@@ -426,7 +451,7 @@ def _estimate_processing(problem, arrays, geometry, rotations) -> _Processing:
         if key not in nccs:
             e_pick, x, sd = subsets[pick]
             x = proc._patterns(x, sd)[0].reshape(len(x), -1)
-            nccs[key] = float((ori.standardise(x) * e_pick).mean())
+            nccs[key] = _mean_ncc(x, e_pick)
         return nccs[key]
 
     def best(candidates, pick="all"):
