@@ -192,18 +192,19 @@ class JointSystem:
         if common and prior is None:
             raise ValueError("a common rotation needs a prior: else it is every pattern's own")
         # Every column in one float64 stack (N, columns, M), the M vectors
-        # or pixels last, weighted in place: one batched product (BLAS)
-        # makes every block of the normal equations, three times faster
-        # than products of the (N, M, K) arrays and their weighted copies
+        # or pixels last, weighted as it is filled: one batched product
+        # (BLAS) makes every block of the normal equations, three times
+        # faster than products of the (N, M, K) arrays and their weighted
+        # copies
         blocks = [jg, jr, jr] if common else [jg, jr]  # a common rotation
         kg = k + 3 if common else k  # moves every pattern as its own does
         js = np.empty((jg.shape[0], kg + 3, jg.shape[1]))
+        sw = np.sqrt(w)
         col = 0
         for b in blocks:
-            js[:, col : col + b.shape[2]] = np.swapaxes(b, 1, 2)
+            out = js[:, col : col + b.shape[2]]
+            np.multiply(np.swapaxes(b, 1, 2), sw[:, None, :], out=out)
             col += b.shape[2]
-        sw = np.sqrt(w)
-        js *= sw[:, None, :]
         return cls._from_stack(js, sw, w, p, k, kg, precision, rtol)
 
     def columns(self, index, geometry_prior: np.ndarray | None = None) -> JointSystem:
