@@ -11,6 +11,9 @@ Layer 4 (indexing): may import geometry, io, patterns and indexing.
 
 from __future__ import annotations
 
+import os
+
+import dask
 import numpy as np
 from orix.crystal_map import CrystalMap, PhaseList
 from orix.quaternion import Rotation
@@ -149,7 +152,14 @@ def _phase_calls(signal, detector, rows, candidates, arrays):
     (N, K, 4), one refined in each phase of *arrays*, by
     :func:`~kikuchipy_geomdic.indexing.orientation.compare_variants` across
     phases (each candidate projected from its own phase), its significance
-    (N,) and every candidate's NCC (N, K)."""
+    (N,) and every candidate's NCC (N, K).
+
+    Each point is compared on its own, so the points are split into parts
+    run on dask's scheduler (:func:`_compare_parts`): in one call the
+    comparison ran on one core while the refinements it follows ran on
+    all, a quarter of the decision's wall time on two cores (measured:
+    0.11 s beside 0.38 s per phase on the hard pair's 15 x 15 map of
+    80 px)."""
     n, k = candidates.shape[:2]
     data = signal.data.reshape((-1,) + signal.data.shape[-2:])
     pcs = detector_pcs(detector, data.shape[0])
@@ -159,9 +169,26 @@ def _phase_calls(signal, detector, rows, candidates, arrays):
         i = slice(start, start + _DECISION_BATCH)
         r = rows[i]
         patterns = np.asarray(data[r].compute() if hasattr(data, "compute") else data[r])
-        labels = np.tile(np.arange(k), len(r))
-        cmp = compare_variants(
-            patterns.astype(np.float64), candidates[i], pcs[r], om, PhaseArrays(arrays, labels)
-        )
-        kept[i], sig[i], ncc[i] = cmp.variant, cmp.significance, cmp.ncc
+        kept[i], sig[i], ncc[i] = _compare_parts(patterns, candidates[i], pcs[r], om, arrays)
     return kept, sig, ncc
+
+
+def _compare_parts(patterns, candidates, pcs, om, arrays):
+    """:func:`_compare` of *patterns* (N, rows, cols) in parts, two per
+    thread of dask's pool, on dask's scheduler."""
+    threads = int(dask.config.get("num_workers", None) or os.cpu_count() or 1)
+    parts = [p for p in np.array_split(np.arange(len(patterns)), 2 * threads) if p.size]
+    tasks = [dask.delayed(_compare)(patterns[p], candidates[p], pcs[p], om, arrays) for p in parts]
+    results = dask.compute(*tasks)
+    return tuple(np.concatenate([res[j] for res in results]) for j in range(3))
+
+
+def _compare(patterns, candidates, pcs, om, arrays):
+    """The kept candidate (N,), its significance (N,) and every candidate's
+    NCC (N, K) of *patterns*, each candidate projected from its phase."""
+    k = candidates.shape[1]
+    labels = np.tile(np.arange(k), len(patterns))
+    cmp = compare_variants(
+        patterns.astype(np.float64), candidates, pcs, om, PhaseArrays(arrays, labels)
+    )
+    return cmp.variant, cmp.significance, cmp.ncc

@@ -96,6 +96,34 @@ def test_a_point_its_pattern_does_not_decide_is_flagged(decided):
     assert decided.converged[2] == 0
 
 
+def test_phase_calls_in_parts_are_the_calls_in_one(two_phase, decided, monkeypatch):
+    # The parts run on dask's threads; each point is compared on its own
+    import dask
+
+    from kikuchipy_geomdic.indexing import _phase_maps
+    from kikuchipy_geomdic.indexing._projection import detector_matrix, detector_pcs
+
+    t = two_phase
+    n = t.xmap.size
+    patterns = np.asarray(t.signal.data, dtype=np.float64).reshape(n, *t.signal.data.shape[-2:])
+    q = decided.rotations.data.reshape(-1, 4)
+    candidates = np.stack([q, q[::-1]], axis=1)
+    pcs = detector_pcs(t.detector, n)
+    om = detector_matrix(t.detector)
+    arrays = tuple(_master_arrays(t))
+    one = _phase_maps._compare(patterns, candidates, pcs, om, arrays)
+    monkeypatch.setitem(dask.config.config, "num_workers", 3)
+    parts = _phase_maps._compare_parts(patterns, candidates, pcs, om, arrays)
+    for a, b in zip(one, parts):
+        np.testing.assert_array_equal(a, b)
+
+
+def _master_arrays(t):
+    from kikuchipy_geomdic.indexing.orientation import master_pattern_arrays
+
+    return [master_pattern_arrays(mp, 20) for mp in t.master_patterns]
+
+
 def test_decide_phase_needs_two_phases_and_this_packages_solver(two_phase):
     t = two_phase
     with pytest.raises(ValueError, match="decide_phase=True needs master patterns of two"):
