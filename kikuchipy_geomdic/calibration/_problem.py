@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
 
-import numba as nb
 import numpy as np
 from kikuchipy.signals import EBSDMasterPattern
 from orix.quaternion import Rotation
@@ -32,6 +31,7 @@ from kikuchipy_geomdic.calibration._phases import (
 from kikuchipy_geomdic.calibration._processing import (
     _compared,
     _fit_lobe,
+    _ncc,
     _with_mean_bands,
 )
 from kikuchipy_geomdic.calibration._systematic import _grains
@@ -463,42 +463,6 @@ def _binning(shape: tuple[int, int]) -> int:
         if ny % f == 0 and nx % f == 0:
             b = f
     return b
-
-
-def _ncc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """NCC (N,) of the patterns *a* with *b* (N, ...), float64 sums."""
-    return _ncc_rows(
-        np.ascontiguousarray(a).reshape(len(a), -1), np.ascontiguousarray(b).reshape(len(b), -1)
-    )
-
-
-@nb.njit(cache=True, nogil=True, error_model="numpy", fastmath={"reassoc", "contract"})
-def _ncc_rows(a, b):
-    # Two passes over each pair of patterns: numpy's centred float64
-    # copies, products and sums made ten (17 ms per 100 patterns of 120 px,
-    # 1 ms here). Sums reassociated to be vectorised, no other fast math: a
-    # constant pattern's NCC stays NaN
-    n, p = a.shape
-    out = np.empty(n)
-    for i in range(n):
-        ma = 0.0
-        mb = 0.0
-        for j in range(p):
-            ma += a[i, j]
-            mb += b[i, j]
-        ma /= p
-        mb /= p
-        ab = 0.0
-        aa = 0.0
-        bb = 0.0
-        for j in range(p):
-            x = a[i, j] - ma
-            y = b[i, j] - mb
-            ab += x * y
-            aa += x * x
-            bb += y * y
-        out[i] = ab / np.sqrt(aa * bb)
-    return out
 
 
 def _measure(sim: np.ndarray, experimental: np.ndarray, kwargs: Mapping) -> dsp.DisplacementField:

@@ -398,28 +398,40 @@ def _standardised(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return x, sd
 
 
-@nb.njit(cache=True, nogil=True, fastmath=True)
-def _mean_ncc(x, e):
-    """The mean over the patterns of the NCC of *x* (N, P) with the
-    standardised *e* (N, P), float64 sums; a constant pattern's is 0. Two
-    passes over each pattern: standardising *x* first, then a product and
-    its mean took six and were a third of the high-pass' choice."""
-    n, p = x.shape
-    total = 0.0
+def _ncc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """NCC (N,) of the patterns *a* with *b* (N, ...), float64 sums."""
+    return _ncc_rows(
+        np.ascontiguousarray(a).reshape(len(a), -1), np.ascontiguousarray(b).reshape(len(b), -1)
+    )
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy", fastmath={"reassoc", "contract"})
+def _ncc_rows(a, b):
+    # Two passes over each pair of patterns: numpy's centred float64
+    # copies, products and sums made ten (17 ms per 100 patterns of 120 px,
+    # 1 ms here). Sums reassociated to be vectorised, no other fast math: a
+    # constant pattern's NCC stays NaN
+    n, p = a.shape
+    out = np.empty(n)
     for i in range(n):
-        mean = 0.0
+        ma = 0.0
+        mb = 0.0
         for j in range(p):
-            mean += x[i, j]
-        mean /= p
-        ss = 0.0
-        dot = 0.0
+            ma += a[i, j]
+            mb += b[i, j]
+        ma /= p
+        mb /= p
+        ab = 0.0
+        aa = 0.0
+        bb = 0.0
         for j in range(p):
-            v = x[i, j] - mean
-            ss += v * v
-            dot += v * e[i, j]
-        if ss > 0:
-            total += dot / np.sqrt(ss * p)
-    return total / n
+            x = a[i, j] - ma
+            y = b[i, j] - mb
+            ab += x * y
+            aa += x * x
+            bb += y * y
+        out[i] = ab / np.sqrt(aa * bb)
+    return out
 
 
 def _estimate_processing(problem, arrays, geometry, rotations) -> _Processing:
@@ -454,7 +466,8 @@ def _estimate_processing(problem, arrays, geometry, rotations) -> _Processing:
         if key not in nccs:
             e_pick, x, sd = subsets[pick]
             x = proc._patterns(x, sd)[0].reshape(len(x), -1)
-            nccs[key] = _mean_ncc(x, e_pick)
+            # A constant pattern (NaN) correlates with nothing
+            nccs[key] = float(np.nan_to_num(_ncc(x, e_pick)).mean())
         return nccs[key]
 
     def best(candidates, pick="all"):
