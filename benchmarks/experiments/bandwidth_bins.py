@@ -122,22 +122,12 @@ def simulate(halfw: int, out: Path) -> None:
 
 def _lambert(data: np.ndarray, title: str):
     """An EBSDMasterPattern laid out as the package's ``*_dynamical.npz`` ones."""
-    from kikuchipy.signals import EBSDMasterPattern
-
-    from kikuchipy_geomdic.validation.master_patterns import phase
+    from kikuchipy_geomdic.validation.master_patterns import _lambert_master_pattern, phase
 
     data = np.asarray(data, dtype=np.float32)
     if data.shape[0] == 1:  # centrosymmetric: ebsdsim stores the north only
         data = np.concatenate([data, data])
-    n = data.shape[-1]
-    axes = [
-        {"size": 2, "name": "hemisphere", "scale": 1, "offset": 0, "units": ""},
-        {"size": n, "name": "height", "scale": 1, "offset": -(n // 2), "units": "px"},
-        {"size": n, "name": "width", "scale": 1, "offset": -(n // 2), "units": "px"},
-    ]
-    mp = EBSDMasterPattern(
-        data, axes=axes, projection="lambert", hemisphere="both", phase=phase("Ni")
-    )
+    mp = _lambert_master_pattern(data, phase("Ni"))
     mp.metadata.General.title = title
     return mp
 

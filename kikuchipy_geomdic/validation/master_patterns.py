@@ -245,17 +245,23 @@ def _dynamical(key: str, kind: str = "dynamical") -> EBSDMasterPattern:
         npz = np.load(path)
         # BaTiO3 is stored as float16 to keep its 801 x 801 grid small
         data = npz["data"].astype(np.float32)
+    mp = _lambert_master_pattern(data, phase(key))
+    mp.metadata.General.title = f"{key} dynamical ({simulator})"
+    return mp
+
+
+def _lambert_master_pattern(data: np.ndarray, phase_) -> EBSDMasterPattern:
+    """The master pattern of Lambert *data* (2, n, n), north then south,
+    of the orix *phase_*, laid out as the package's ``*_dynamical.npz``."""
     n = data.shape[-1]
     axes = [
         {"size": 2, "name": "hemisphere", "scale": 1, "offset": 0, "units": ""},
         {"size": n, "name": "height", "scale": 1, "offset": -(n // 2), "units": "px"},
         {"size": n, "name": "width", "scale": 1, "offset": -(n // 2), "units": "px"},
     ]
-    mp = EBSDMasterPattern(
-        data, axes=axes, projection="lambert", hemisphere="both", phase=phase(key)
+    return EBSDMasterPattern(
+        data, axes=axes, projection="lambert", hemisphere="both", phase=phase_
     )
-    mp.metadata.General.title = f"{key} dynamical ({simulator})"
-    return mp
 
 
 @functools.lru_cache(maxsize=1)
