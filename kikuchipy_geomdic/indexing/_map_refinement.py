@@ -19,6 +19,7 @@ from kikuchipy.signals import EBSDMasterPattern
 from orix.quaternion import Rotation
 
 from kikuchipy_geomdic.indexing._map_output import _merge
+from kikuchipy_geomdic.indexing._parts import _threads
 from kikuchipy_geomdic.indexing._point_refinement import (
     _CONF,
     _CONV,
@@ -239,17 +240,6 @@ def _chunks(rows: int, cols: int, pattern_bytes: int) -> tuple[int, int]:
 #: Chunks per thread of dask's pool that :func:`refine_map` makes at least
 #: of a map in memory (more than one: chunks differ in cost)
 CHUNKS_PER_THREAD = 2
-
-
-def _threads() -> int:
-    """Threads of dask's local pool (its ``num_workers`` setting, else the
-    CPU count)."""
-    import os
-
-    import dask
-
-    n = dask.config.get("num_workers", None)
-    return int(n) if n else (os.cpu_count() or 1)
 
 
 def _operators(ops) -> np.ndarray:

@@ -11,8 +11,6 @@ Layer 4 (indexing): may import geometry, io, patterns and indexing.
 
 from __future__ import annotations
 
-import os
-
 import dask
 import numpy as np
 from orix.crystal_map import CrystalMap, PhaseList
@@ -21,6 +19,7 @@ from orix.quaternion import Rotation
 from kikuchipy_geomdic.indexing._kikuchipy import _reindex_kikuchipy
 from kikuchipy_geomdic.indexing._map_output import _flag_isolated, _with_domain
 from kikuchipy_geomdic.indexing._map_refinement import _reindex_geomdic
+from kikuchipy_geomdic.indexing._parts import _parts
 from kikuchipy_geomdic.indexing._projection import PhaseArrays, detector_matrix, detector_pcs
 from kikuchipy_geomdic.indexing._variant_comparison import compare_variants
 
@@ -176,9 +175,10 @@ def _phase_calls(signal, detector, rows, candidates, arrays):
 def _compare_parts(patterns, candidates, pcs, om, arrays):
     """:func:`_compare` of *patterns* (N, rows, cols) in parts, two per
     thread of dask's pool, on dask's scheduler."""
-    threads = int(dask.config.get("num_workers", None) or os.cpu_count() or 1)
-    parts = [p for p in np.array_split(np.arange(len(patterns)), 2 * threads) if p.size]
-    tasks = [dask.delayed(_compare)(patterns[p], candidates[p], pcs[p], om, arrays) for p in parts]
+    tasks = [
+        dask.delayed(_compare)(patterns[p], candidates[p], pcs[p], om, arrays)
+        for p in _parts(len(patterns))
+    ]
     results = dask.compute(*tasks)
     return tuple(np.concatenate([res[j] for res in results]) for j in range(3))
 

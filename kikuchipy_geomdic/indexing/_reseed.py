@@ -13,12 +13,11 @@ Layer 4 (indexing): may import geometry, io, patterns and indexing.
 
 from __future__ import annotations
 
-import os
-
 import dask
 import numpy as np
 from orix.quaternion import Rotation
 
+from kikuchipy_geomdic.indexing._parts import _parts
 from kikuchipy_geomdic.indexing._point_refinement import (
     _EVALS,
     _NCC,
@@ -213,13 +212,11 @@ def _trials(patterns, seeds, pcs, options, floor) -> np.ndarray:
     Every row is refined on its own, so the parts give the rows one call
     gives; run as one call, reseeding took one core (measured: a quarter
     of the work of the users map of dose 150 on one of two threads)."""
-    threads = int(dask.config.get("num_workers", None) or os.cpu_count() or 1)
-    parts = [r for r in np.array_split(np.arange(len(seeds)), 2 * threads) if r.size]
     tasks = [
         dask.delayed(_refine_points)(
             patterns[r], seeds[r], pcs[r], **options, floor=None if floor is None else floor[r]
         )
-        for r in parts
+        for r in _parts(len(seeds))
     ]
     return np.concatenate(dask.compute(*tasks))
 
