@@ -36,12 +36,11 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
-import subprocess
-import sys
 import time
 import warnings
 
 import numpy as np
+from _tee import start_log
 from bench_envelope import CELLS, PARAMETERS, _reindex_row, envelope_map  # run from benchmarks/
 
 from kikuchipy_geomdic import refine_geometry_dic
@@ -125,10 +124,7 @@ def main(argv=None) -> None:
     ap.add_argument("--tolerances", type=float, nargs="+", default=[0.0, LATTICE_TOLERANCE])
     ap.add_argument("--reindex", action="store_true", help="reindex each domain map after")
     args = ap.parse_args(argv)
-    version = subprocess.run(
-        ["git", "describe", "--always", "--dirty"], capture_output=True, text=True
-    ).stdout.strip()
-    print(f"command: {' '.join(sys.argv)}  (code {version})", flush=True)
+    start_log()
     for cell in args.cells:
         for stretch in args.stretches:
             for seed in args.seeds:

@@ -50,7 +50,6 @@ from __future__ import annotations
 
 import argparse
 import inspect
-import subprocess
 import sys
 import time
 import warnings
@@ -70,7 +69,7 @@ from kikuchipy_geomdic.validation.camera import MODERATE
 from kikuchipy_geomdic.validation.multiphase import PAIRS, two_phase_map
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _tee import Tee  # noqa: E402
+from _tee import start_log  # noqa: E402
 
 #: A calibration of a two-phase map: ``calibrate(signal, start_xmap,
 #: start_detector, master_patterns, energy) -> detector``, master_patterns
@@ -346,13 +345,7 @@ def main(argv=None) -> None:
     p.add_argument("--calibrate", default="dynamical", help="master patterns to calibrate with")
     p.add_argument("--log", type=Path, help="also write the output to this file")
     args = p.parse_args(argv)
-    if args.log:
-        args.log.parent.mkdir(parents=True, exist_ok=True)
-        sys.stdout = Tee(sys.__stdout__, open(args.log, "w"))  # noqa: SIM115
-    version = subprocess.run(
-        ["git", "describe", "--always", "--dirty"], capture_output=True, text=True
-    ).stdout.strip()
-    print(f"command: {' '.join(sys.argv)}  (code {version})")
+    start_log(args.log)
     hooks = default_hooks()
     print(
         f"{'pair':<19s} {'seed':>4s} {'method':<23s} {'phase%':>6s} {'err mean':>9s} "

@@ -41,13 +41,12 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import subprocess
-import sys
 import time
 import warnings
 from dataclasses import replace
 
 import numpy as np
+from _tee import start_log  # run from benchmarks/
 
 from kikuchipy_geomdic.calibration.bound import cramer_rao_bound
 from kikuchipy_geomdic.calibration.refinement import refine_geometry_dic
@@ -156,10 +155,7 @@ def main(argv=None) -> None:
         "--dose", type=float, help="the camera's counts per pixel instead of the case's"
     )
     args = p.parse_args(argv)
-    version = subprocess.run(
-        ["git", "describe", "--always", "--dirty"], capture_output=True, text=True
-    ).stdout.strip()
-    print(f"command: {' '.join(sys.argv)}  (code {version})")
+    start_log()
     print(
         f"{'case':<13s} {'seed':>4s} {'method':<12s} {'time s':>6s} {'PC err':>10s} "
         f"{'field max':>10s} "

@@ -32,12 +32,12 @@ import argparse
 import contextlib
 import io
 import json
-import subprocess
 import sys
 import time
 import warnings
 
 import numpy as np
+from _tee import start_log
 from bench_envelope import CELLS, PARAMETERS, envelope_map  # run from benchmarks/
 from bench_realistic import CASES, realistic_map
 
@@ -133,10 +133,7 @@ def main(argv=None) -> None:
         print(summary(rows, "all"))
         return
     orientations.GRAIN_POINTS = args.grain_points
-    version = subprocess.run(
-        ["git", "describe", "--always", "--dirty"], capture_output=True, text=True
-    ).stdout.strip()
-    print(f"command: {' '.join(sys.argv)}  (code {version})")
+    start_log()
     rows = []
     for name in args.maps:
         for seed in args.seeds:

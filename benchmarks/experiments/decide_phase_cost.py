@@ -19,7 +19,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import subprocess
 import sys
 import time
 import warnings
@@ -32,7 +31,7 @@ from kikuchipy_geomdic.indexing.reindex import reindex
 from kikuchipy_geomdic.validation.multiphase import PAIRS, two_phase_map
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _tee import Tee  # noqa: E402
+from _tee import start_log  # noqa: E402
 
 PARTS = _phase_maps._compare_parts
 
@@ -104,12 +103,7 @@ def main(argv=None):
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--log", type=Path)
     args = p.parse_args(argv)
-    if args.log:
-        args.log.parent.mkdir(parents=True, exist_ok=True)
-        sys.stdout = Tee(sys.__stdout__, open(args.log, "w"))  # noqa: SIM115
-    version = subprocess.run(["git", "describe", "--always", "--dirty"], capture_output=True,
-                             text=True).stdout.strip()  # fmt: skip
-    print(f"command: {' '.join(sys.argv)}  (code {version})")
+    start_log(args.log)
     warnings.simplefilter("ignore")
     for pair in args.pairs:
         for seed in args.seeds:

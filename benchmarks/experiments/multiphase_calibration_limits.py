@@ -23,7 +23,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import subprocess
 import sys
 import time
 import warnings
@@ -37,7 +36,7 @@ from kikuchipy_geomdic.validation.camera import MODERATE
 from kikuchipy_geomdic.validation.multiphase import PAIRS, two_phase_map
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _tee import Tee  # noqa: E402
+from _tee import start_log  # noqa: E402
 
 PC = ("pcx", "pcy", "pcz")
 
@@ -83,12 +82,7 @@ def main(argv=None):
     )
     p.add_argument("--log", type=Path)
     args = p.parse_args(argv)
-    if args.log:
-        args.log.parent.mkdir(parents=True, exist_ok=True)
-        sys.stdout = Tee(sys.__stdout__, open(args.log, "w"))  # noqa: SIM115
-    version = subprocess.run(["git", "describe", "--always", "--dirty"], capture_output=True,
-                             text=True).stdout.strip()  # fmt: skip
-    print(f"command: {' '.join(sys.argv)}  (code {version})")
+    start_log(args.log)
     print(f"{'seed':>4s} {'way':<10s} {'PC err (pcx pcy pcz)':<26s} {'se':<24s} {'max z':>5s} "
           f"{'systematic part of se':<24s} {'CPU s':>6s}  points per phase")  # fmt: skip
     for seed in args.seeds:
