@@ -152,7 +152,11 @@ def _prior(se, p, k, parts_weight):
 def _recombine(files):
     rows = [json.loads(line) for f in files for line in open(f)]
     rows = [r for r in rows if r["converged"] and np.isfinite(r["se"]["pcx"])]
-    print(f"{len(rows)} converged maps")
+    # A map whose full field was skipped (the DIC stage's errors only) has
+    # no parts to recombine
+    skipped = [r for r in rows if "raw" not in r]
+    rows = [r for r in rows if "raw" in r]
+    print(f"{len(rows)} converged maps with a full field; {len(skipped)} without")
     rules = dict(RULES)
     for w in (0.25, 0.5, 1.0):
         rules[f"raise, prior parts {w}"] = lambda p, k, w=w: _prior(p["inflated"][k], p, k, w)

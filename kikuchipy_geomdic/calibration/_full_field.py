@@ -26,6 +26,8 @@ from kikuchipy_geomdic.calibration._problem import _LoopOutcome, _Problem, _Stat
 from kikuchipy_geomdic.calibration._processing import _estimate_processing
 from kikuchipy_geomdic.calibration._progress import _Progress
 from kikuchipy_geomdic.calibration._systematic import (
+    CRYSTAL_PRIOR_PARTS,
+    PRIOR_PARTS,
     REGIONS,
     _grain_errors,
     _quadrants,
@@ -204,10 +206,12 @@ def _full_field_stage(
         standard_errors = _inflated(ff.standard_errors, adequacy)
         if free_se is None:
             prior, parts = {k: v for k, v in statistical.items() if k in _PC}, ff.grains
+            weight = PRIOR_PARTS
         else:
             prior, parts = _named_errors(problem.parameters, free_se), REGIONS[0] * REGIONS[1]
+            weight = CRYSTAL_PRIOR_PARTS
         standard_errors = {
-            k: _with_prior(v, prior[k], parts) if k in _PC and k in prior
+            k: _with_prior(v, prior[k], parts, weight) if k in _PC and k in prior
             else max(v, prior.get(k, 0.0))
             for k, v in standard_errors.items()
         }  # fmt: skip

@@ -265,10 +265,10 @@ def test_crystal_model_errors_raised_towards_free_rotations(monkeypatch):
     """The crystal model's full-field standard errors are raised towards
     the DIC stage's with a free rotation per pattern (a misfit all
     patterns share can fit the tie to one parent): the PC's by the share
-    of PRIOR_PARTS against the quadrants' three degrees of freedom, the
-    angles' in full."""
+    of CRYSTAL_PRIOR_PARTS against the quadrants' three degrees of
+    freedom, the angles' in full."""
     import kikuchipy_geomdic.calibration._full_field as ff
-    from kikuchipy_geomdic.calibration._systematic import PRIOR_PARTS, REGIONS
+    from kikuchipy_geomdic.calibration._systematic import CRYSTAL_PRIOR_PARTS, REGIONS
     from kikuchipy_geomdic.calibration.uncertainty import _free_errors
 
     seen = {}
@@ -285,7 +285,7 @@ def test_crystal_model_errors_raised_towards_free_rotations(monkeypatch):
     )  # fmt: skip
     assert res.orientation_model == "crystal"
     assert np.all(np.isfinite(seen["free"])) and np.all(seen["free"] > 0)
-    share = PRIOR_PARTS / (REGIONS[0] * REGIONS[1] - 1 + PRIOR_PARTS)
+    share = CRYSTAL_PRIOR_PARTS / (REGIONS[0] * REGIONS[1] - 1 + CRYSTAL_PRIOR_PARTS)
     for n in ("pcx", "pcy", "pcz"):
         assert np.sqrt(share) * 0.5 <= res.standard_errors[n] < 0.5
     assert res.standard_errors["tilt"] >= 0.5 or not np.isfinite(res.standard_errors["tilt"])
