@@ -18,6 +18,10 @@ Usage::
     python benchmarks/experiments/multiphase_calibration_limits.py --seeds 0 1 2 3 4
     python benchmarks/experiments/multiphase_calibration_limits.py --size 96 --side 15
     python benchmarks/experiments/multiphase_calibration_limits.py --calibrate de-ebsd
+    python benchmarks/experiments/multiphase_calibration_limits.py --ways joint:100 --psf 0.6
+
+``--psf`` forces the full field's point spread (px) to the camera's
+instead of the one it estimates (printed beside each row).
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from kikuchipy_geomdic.calibration import _full_field
 from kikuchipy_geomdic.calibration.refinement import refine_geometry_dic
 from kikuchipy_geomdic.validation.camera import MODERATE
 from kikuchipy_geomdic.validation.multiphase import PAIRS, two_phase_map
@@ -39,6 +44,20 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _tee import start_log  # noqa: E402
 
 PC = ("pcx", "pcy", "pcz")
+_ESTIMATED = {}
+
+
+def _forced_psf(psf):
+    """The full field's processing estimate, its point spread replaced by
+    *psf* (None: as estimated); the estimate is kept in _ESTIMATED."""
+    estimate = _full_field._estimate_processing
+
+    def forced(*args, **kwargs):
+        proc = estimate(*args, **kwargs)
+        _ESTIMATED["psf"] = proc.psf
+        return proc if psf is None else replace(proc, psf=psf)
+
+    _full_field._estimate_processing = forced
 
 
 def calibrations(tp, ways):
@@ -80,9 +99,11 @@ def main(argv=None):
     p.add_argument(
         "--ways", nargs="+", default=["joint:100", "major:100", "joint:all", "major:all"]
     )
+    p.add_argument("--psf", type=float, help="the full field's point spread forced (px)")
     p.add_argument("--log", type=Path)
     args = p.parse_args(argv)
     start_log(args.log)
+    _forced_psf(args.psf)
     print(f"{'seed':>4s} {'way':<10s} {'PC err (pcx pcy pcz)':<26s} {'se':<24s} {'max z':>5s} "
           f"{'systematic part of se':<24s} {'CPU s':>6s}  points per phase")  # fmt: skip
     for seed in args.seeds:
@@ -97,7 +118,8 @@ def main(argv=None):
                     f"{seed:4d} {r['way']:<10s} " + " ".join(f"{e:+.1e}" for e in r["err"])
                     + "   " + " ".join(f"{s:.1e}" for s in r["se"]) + f" {z:5.1f}  "
                     + " ".join(f"{s:.1e}" for s in r["sys"])
-                    + f" {r['t']:6.1f}  {r['ppp']}" + ("" if r["conv"] else " NOT CONVERGED"),
+                    + f" {r['t']:6.1f}  {r['ppp']}" + ("" if r["conv"] else " NOT CONVERGED")
+                    + f"  point spread estimated {_ESTIMATED.get('psf', np.nan):.2f}",
                     flush=True,
                 )  # fmt: skip
 
