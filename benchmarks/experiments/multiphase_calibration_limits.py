@@ -21,7 +21,9 @@ Usage::
     python benchmarks/experiments/multiphase_calibration_limits.py --ways joint:100 --psf 0.6
 
 ``--psf`` forces the full field's point spread (px) to the camera's
-instead of the one it estimates (printed beside each row).
+instead of the one it estimates (printed beside each row). Each row ends
+with the PC's standard errors over the Cramer-Rao bound of the points
+used (the data's own master patterns at the truth).
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from kikuchipy_geomdic.calibration import _full_field
+from kikuchipy_geomdic.calibration.bound import cramer_rao_bound
 from kikuchipy_geomdic.calibration.refinement import refine_geometry_dic
 from kikuchipy_geomdic.validation.camera import MODERATE
 from kikuchipy_geomdic.validation.multiphase import PAIRS, two_phase_map
@@ -84,7 +87,12 @@ def calibrations(tp, ways):
         se = np.array([res.standard_errors[k] for k in PC])
         sys_ = res.adequacy.get("systematic", {}) or {}
         syst = np.array([sys_.get(k, np.nan) for k in PC])
-        yield dict(way=f"{kind} {n}", err=err, se=se, sys=syst, t=t,
+        crb = cramer_rao_bound(
+            tp.signal, tp.xmap, tp.geometry, [tp.simulators[n] for n in tp.phase_names],
+            tp.energy, points=res.points,
+        )  # fmt: skip
+        bound = np.array([crb.sigma[k] for k in PC])
+        yield dict(way=f"{kind} {n}", err=err, se=se, sys=syst, t=t, bound=bound,
                    ppp=res.points_per_phase, conv=res.converged)  # fmt: skip
 
 
@@ -119,7 +127,8 @@ def main(argv=None):
                     + "   " + " ".join(f"{s:.1e}" for s in r["se"]) + f" {z:5.1f}  "
                     + " ".join(f"{s:.1e}" for s in r["sys"])
                     + f" {r['t']:6.1f}  {r['ppp']}" + ("" if r["conv"] else " NOT CONVERGED")
-                    + f"  point spread estimated {_ESTIMATED.get('psf', np.nan):.2f}",
+                    + f"  point spread estimated {_ESTIMATED.get('psf', np.nan):.2f}"
+                    + "  se/bound " + " ".join(f"{s:.1f}" for s in r["se"] / r["bound"]),
                     flush=True,
                 )  # fmt: skip
 

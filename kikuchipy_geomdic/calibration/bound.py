@@ -23,7 +23,8 @@ analytic for the rotation and each pattern's PC, and a detector angle as
 the crystal rotation plus the change of the PC field it amounts to). Each
 pattern's nuisances are eliminated by a Schur complement, the reduced
 matrices summed over the patterns and inverted: the square roots of the
-diagonal are the bound.
+diagonal are the bound. On a multi-phase map each pattern is simulated
+from its phase's master pattern.
 
 The noise variance is estimated from each pattern's residual after the
 fit of ``a`` and ``b``, so anything the simulation does not reproduce
@@ -50,6 +51,7 @@ and calibration.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -70,6 +72,7 @@ from kikuchipy_geomdic.geometry import (
 )
 from kikuchipy_geomdic.geometry.maps import flat_index, navigation_shape
 from kikuchipy_geomdic.indexing.orientation import master_pattern_arrays
+from kikuchipy_geomdic.indexing.phases_to_refine import phases_to_refine
 from kikuchipy_geomdic.patterns.simulation import check_master_pattern
 
 __all__ = ["CramerRaoBound", "cramer_rao_bound", "BOUND_STEPS"]
@@ -188,7 +191,7 @@ def cramer_rao_bound(
     patterns: EBSD | np.ndarray,
     rotations: Rotation | CrystalMap,
     geometry: MapGeometry,
-    master_pattern: EBSDMasterPattern,
+    master_pattern: EBSDMasterPattern | Sequence[EBSDMasterPattern],
     energy: float,
     *,
     points: int | np.ndarray | None = None,
@@ -224,7 +227,11 @@ def cramer_rao_bound(
         The geometry at which the bound is evaluated (the refined or the
         true one), with the map's navigation shape and step sizes.
     master_pattern
-        Lambert master pattern of the phase.
+        Lambert master pattern of the phase, or a list of them, one per
+        phase of a multi-phase map (*rotations* a ``CrystalMap``), matched
+        to its phases as the calibration matches them
+        (:func:`~kikuchipy_geomdic.indexing.phases_to_refine.phases_to_refine`);
+        the patterns of a phase without one are left out, with a warning.
     energy
         Beam energy in kV.
     points
@@ -280,14 +287,17 @@ def cramer_rao_bound(
     """
     if not isinstance(geometry, MapGeometry):
         raise TypeError(f"geometry must be a MapGeometry, not {type(geometry).__name__}")
-    check_master_pattern(master_pattern)
     names = check_parameters(parameters)
     columns, split = solved_parameters(names)
     step = _steps(columns, steps)
-    arrays = master_pattern_arrays(master_pattern, energy)
     exp, pts = _patterns(patterns, geometry, points)
+    which, arrays = _phases(master_pattern, rotations, pts, geometry.navigation_shape, energy)
     rot = _rotations(rotations, pts, geometry.navigation_shape)
     sigma = _noise(noise, len(pts))
+    if (which < 0).any():
+        kept = which >= 0
+        exp, pts, rot, which = exp[kept], pts[kept], rot[kept], which[kept]
+        sigma = None if sigma is None else sigma[kept]
 
     n, k = len(pts), len(columns)
     n_px = exp.shape[1] * exp.shape[2]
@@ -296,18 +306,20 @@ def cramer_rao_bound(
     chunk = max(1, int(max_bytes // (n_px * (k + 2 * _N_ROT + 7) * 8)))
     fisher = np.empty((n, k + _N_ROT + 2, k + _N_ROT + 2))
     fit = np.empty((4, n))
-    for start in range(0, n, chunk):
-        sl = slice(start, min(n, start + chunk))
-        fisher[sl], fit[:, sl] = _fisher(
-            exp[sl],
-            rot[sl],
-            pts[sl],
-            geometry,
-            arrays,
-            columns,
-            step,
-            None if sigma is None else sigma[sl],
-        )
+    for phase, phase_arrays in enumerate(arrays):
+        of_phase = np.flatnonzero(which == phase)
+        for start in range(0, len(of_phase), chunk):
+            sl = of_phase[start : start + chunk]
+            fisher[sl], fit[:, sl] = _fisher(
+                exp[sl],
+                rot[sl],
+                pts[sl],
+                geometry,
+                phase_arrays,
+                columns,
+                step,
+                None if sigma is None else sigma[sl],
+            )
 
     geo = np.arange(k)
     free = np.arange(k, k + _N_ROT + 2)
@@ -426,6 +438,40 @@ def _rotations(rotations, pts: np.ndarray, nav: tuple[int, int]) -> Rotation:
         f"{rot.size} rotations for {len(pts)} patterns: give one per pattern or one per "
         f"map point ({nav[0] * nav[1]})"
     )
+
+
+def _phases(master_pattern, rotations, pts: np.ndarray, nav, energy) -> tuple[np.ndarray, list]:
+    """Which of the master patterns' arrays (the list returned) each point
+    of *pts* is simulated with: its phase's (-1: none, the point left out,
+    with a warning). One master pattern serves every point."""
+    if not isinstance(master_pattern, (list, tuple)):
+        check_master_pattern(master_pattern)
+        return np.zeros(len(pts), dtype=int), [master_pattern_arrays(master_pattern, energy)]
+    if not isinstance(rotations, CrystalMap):
+        raise TypeError(
+            "A list of master patterns needs rotations as a CrystalMap, whose phases "
+            f"they are matched to, not {type(rotations).__name__}"
+        )
+    if rotations.size != nav[0] * nav[1]:
+        raise ValueError(
+            f"A list of master patterns needs the whole map's CrystalMap ({nav[0] * nav[1]} "
+            f"points), not one of {rotations.size}"
+        )
+    phases = phases_to_refine(rotations, master_pattern, energy=energy)
+    of_point = rotations.phase_id[flat_index(pts, nav)]
+    which = np.full(len(pts), -1)
+    for i, phase in enumerate(phases):
+        which[of_point == phase.phase_id] = i
+    if (which < 0).all():
+        raise ValueError("No pattern of the given points is of a phase with a master pattern")
+    if (which < 0).any():
+        warnings.warn(
+            f"{int((which < 0).sum())} of {len(pts)} patterns are of phases without a master "
+            "pattern: left out of the bound",
+            UserWarning,
+            stacklevel=3,
+        )
+    return which, [phase.arrays(energy) for phase in phases]
 
 
 def _noise(noise, n: int) -> np.ndarray | None:

@@ -12,6 +12,7 @@ from kikuchipy_geomdic.calibration.bound import CramerRaoBound, cramer_rao_bound
 from kikuchipy_geomdic.calibration.jacobian import parameter_derivatives
 from kikuchipy_geomdic.calibration.result import GeometryRefinementResult
 from kikuchipy_geomdic.geometry import copy_detector, rotations_from_vectors
+from kikuchipy_geomdic.geometry.maps import flat_index
 from kikuchipy_geomdic.patterns.simulation import simulate_patterns
 from kikuchipy_geomdic.validation import synthetic
 
@@ -344,3 +345,50 @@ def test_bad_input(maps, tiny):
         cramer_rao_bound(data.tolist(), rot, geo, mp, 20)
     with pytest.raises(TypeError, match="rotations must be an orix Rotation"):
         cramer_rao_bound(data, rot.data, geo, mp, 20)
+
+
+@pytest.fixture(scope="module")
+def two_phases():
+    from kikuchipy_geomdic.validation import multiphase
+
+    return multiphase.two_phase_map(
+        multiphase.PAIRS["ferrite+austenite"], (6, 7), (40, 40), seed=1
+    )
+
+
+def test_two_phases_add_their_information(two_phases):
+    """A list of master patterns, one per phase: each pattern simulated
+    from its phase's, the information of the two phases' patterns summed,
+    as the bounds of each phase's points alone combine."""
+    tp = two_phases
+    names = ["pcx", "pcy", "pcz"]
+    mps = [tp.simulators[name] for name in tp.phase_names]
+    both = cramer_rao_bound(tp.signal, tp.xmap, tp.geometry, mps, tp.energy, parameters=names)
+    assert len(both.points) == tp.xmap.size
+    alone = []
+    for phase_id, mp in enumerate(mps):
+        pts = np.argwhere(tp.xmap.phase_id.reshape(tp.xmap.shape) == phase_id)
+        alone.append(
+            cramer_rao_bound(
+                tp.signal, tp.xmap, tp.geometry, mp, tp.energy, points=pts, parameters=names
+            )
+        )
+    info = sum(np.linalg.inv(b.covariance) for b in alone)
+    assert np.allclose(both.covariance, np.linalg.inv(info), rtol=1e-6)
+    for name in names:
+        assert both.sigma[name] < min(b.sigma[name] for b in alone)
+    # Points of no phase with a master pattern (here not indexed): left
+    # out, and said so
+    xmap = tp.xmap.deepcopy()
+    some = np.zeros(xmap.size, dtype=bool)
+    some[:3] = True
+    xmap[some].phase_id = -1
+    with pytest.warns(UserWarning, match="3 of 42 patterns are of phases without a master"):
+        fewer = cramer_rao_bound(tp.signal, xmap, tp.geometry, mps, tp.energy, parameters=names)
+    assert len(fewer.points) == 39 and not np.isin(0, flat_index(fewer.points, xmap.shape))
+    for name in names:
+        assert fewer.sigma[name] > both.sigma[name]
+    with pytest.raises(TypeError, match="needs rotations as a CrystalMap"):
+        cramer_rao_bound(
+            tp.signal, tp.xmap.rotations, tp.geometry, mps, tp.energy, parameters=names
+        )
