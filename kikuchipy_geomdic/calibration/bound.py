@@ -452,13 +452,17 @@ def _phases(master_pattern, rotations, pts: np.ndarray, nav, energy) -> tuple[np
             "A list of master patterns needs rotations as a CrystalMap, whose phases "
             f"they are matched to, not {type(rotations).__name__}"
         )
-    if rotations.size != nav[0] * nav[1]:
-        raise ValueError(
-            f"A list of master patterns needs the whole map's CrystalMap ({nav[0] * nav[1]} "
-            f"points), not one of {rotations.size}"
-        )
     phases = phases_to_refine(rotations, master_pattern, energy=energy)
-    of_point = rotations.phase_id[flat_index(pts, nav)]
+    # One per pattern (a calibration's xmap) or one per map point
+    if rotations.size == len(pts):
+        of_point = rotations.phase_id
+    elif rotations.size == nav[0] * nav[1]:
+        of_point = rotations.phase_id[flat_index(pts, nav)]
+    else:
+        raise ValueError(
+            f"A CrystalMap of {rotations.size} points for {len(pts)} patterns: give one per "
+            f"pattern or one per map point ({nav[0] * nav[1]})"
+        )
     which = np.full(len(pts), -1)
     for i, phase in enumerate(phases):
         which[of_point == phase.phase_id] = i

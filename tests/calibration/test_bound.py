@@ -388,6 +388,17 @@ def test_two_phases_add_their_information(two_phases):
     assert len(fewer.points) == 39 and not np.isin(0, flat_index(fewer.points, xmap.shape))
     for name in names:
         assert fewer.sigma[name] > both.sigma[name]
+    # A calibration's crystal map, one point per pattern, as the whole map's
+    pts = np.argwhere(np.ones(tp.xmap.shape, dtype=bool))[::2]
+    chosen = np.zeros(tp.xmap.size, dtype=bool)
+    chosen[flat_index(pts, tp.xmap.shape)] = True
+    per_pattern = tp.xmap[chosen]
+    args = (tp.signal, per_pattern, tp.geometry, mps, tp.energy)
+    half = cramer_rao_bound(*args, points=pts, parameters=names)
+    whole = cramer_rao_bound(*args[:1], tp.xmap, *args[2:], points=pts, parameters=names)
+    assert np.allclose(half.covariance, whole.covariance, rtol=1e-12)
+    with pytest.raises(ValueError, match="A CrystalMap of 21 points for 42 patterns"):
+        cramer_rao_bound(*args, parameters=names)
     with pytest.raises(TypeError, match="needs rotations as a CrystalMap"):
         cramer_rao_bound(
             tp.signal, tp.xmap.rotations, tp.geometry, mps, tp.energy, parameters=names
