@@ -207,15 +207,15 @@ def _grain_errors(
     return np.sqrt(np.clip(jackknife * nu / (nu - 2) - model, 0, None)), float(effective.min())
 
 
-def _with_prior(se: float, prior: float, parts: float, weight: float = PRIOR_PARTS) -> float:
+def _with_prior(se: float, prior: float, parts: float, prior_parts: float = PRIOR_PARTS) -> float:
     """The standard error *se* whose systematic part comes from the spread
     over *parts* parts of the map (its effective grains,
     :func:`_grain_errors`, or the detector's quadrants), its variance
     raised towards the *prior* one where that is larger, with the weight
-    of *weight* parts (:data:`PRIOR_PARTS`, :data:`CRYSTAL_PRIOR_PARTS`)
+    of *prior_parts* parts (:data:`PRIOR_PARTS`, :data:`CRYSTAL_PRIOR_PARTS`)
     against the spread's degrees of freedom: a shrinkage estimate of the
     variance, whose prior fades as the parts grow in number (and is all
     there is from one part)."""
     nu = max(parts - 1, 0.0)
-    weight = weight / (nu + weight)
+    weight = prior_parts / (nu + prior_parts)
     return float(np.sqrt(se**2 + weight * max(prior**2 - se**2, 0.0)))

@@ -429,14 +429,20 @@ def _rotations(rotations, pts: np.ndarray, nav: tuple[int, int]) -> Rotation:
         raise TypeError(
             f"rotations must be an orix Rotation or CrystalMap, not {type(rotations).__name__}"
         )
-    rot = Rotation(rotations.data.reshape(-1, 4))
-    if rot.size == len(pts):
-        return rot
-    if rot.size == nav[0] * nav[1]:
-        return rot[flat_index(pts, nav)]
+    q = rotations.data.reshape(-1, 4)
+    return Rotation(_at_points(q, pts, nav, f"{len(q)} rotations"))
+
+
+def _at_points(values: np.ndarray, pts: np.ndarray, nav: tuple[int, int], what: str):
+    """*values*, one per pattern or one per map point, at the patterns'
+    points *pts*; *what* names them in the error."""
+    if len(values) == len(pts):
+        return values
+    if len(values) == nav[0] * nav[1]:
+        return values[flat_index(pts, nav)]
     raise ValueError(
-        f"{rot.size} rotations for {len(pts)} patterns: give one per pattern or one per "
-        f"map point ({nav[0] * nav[1]})"
+        f"{what} for {len(pts)} patterns: give one per pattern or one per map point "
+        f"({nav[0] * nav[1]})"
     )
 
 
@@ -453,16 +459,9 @@ def _phases(master_pattern, rotations, pts: np.ndarray, nav, energy) -> tuple[np
             f"they are matched to, not {type(rotations).__name__}"
         )
     phases = phases_to_refine(rotations, master_pattern, energy=energy)
-    # One per pattern (a calibration's xmap) or one per map point
-    if rotations.size == len(pts):
-        of_point = rotations.phase_id
-    elif rotations.size == nav[0] * nav[1]:
-        of_point = rotations.phase_id[flat_index(pts, nav)]
-    else:
-        raise ValueError(
-            f"A CrystalMap of {rotations.size} points for {len(pts)} patterns: give one per "
-            f"pattern or one per map point ({nav[0] * nav[1]})"
-        )
+    # A calibration's xmap (one point per pattern) or the whole map's
+    what = f"A CrystalMap of {rotations.size} points"
+    of_point = _at_points(rotations.phase_id, pts, nav, what)
     which = np.full(len(pts), -1)
     for i, phase in enumerate(phases):
         which[of_point == phase.phase_id] = i
