@@ -29,8 +29,10 @@ from kikuchipy_geomdic.calibration._phases import (
     _sub_problems,
 )
 from kikuchipy_geomdic.calibration._processing import (
+    PSF_NEGLIGIBLE,
     _compared,
     _fit_lobe,
+    _gaussian_blur,
     _ncc,
     _with_mean_bands,
 )
@@ -92,6 +94,9 @@ class _Problem:
     phases: tuple = ()
     #: Index into :attr:`phases` of each point's phase (N,)
     point_phase: np.ndarray | None = field(default=None, repr=False)
+    #: Gaussian point spread (px) the DIC stage's simulations are blurred
+    #: by (:meth:`compare`); 0: as simulated
+    point_spread: float = 0.0
 
     #: The last simulations (:meth:`simulate`) by their inputs, shared with
     #: the problems replaced from this one (the inputs are the key)
@@ -276,9 +281,11 @@ class _Problem:
         self, geometry: MapGeometry, rotations: Rotation
     ) -> tuple[dsp.DisplacementField, np.ndarray]:
         """Displacement field and NCC (N,) of the patterns simulated at
-        *geometry* against the experimental ones (:attr:`dic_experimental`),
-        from one simulation."""
+        *geometry* (blurred by :attr:`point_spread`) against the
+        experimental ones (:attr:`dic_experimental`), from one simulation."""
         sim = self.simulate(geometry, rotations).astype(np.float32)
+        if self.point_spread >= PSF_NEGLIGIBLE:
+            sim = _gaussian_blur(sim, self.point_spread, sim.shape[1:])
         field = _measure(sim, self.dic_experimental, self.dic_kwargs)
         return field, _ncc(sim, self.dic_experimental)
 

@@ -90,8 +90,7 @@ def test_holding_an_angle_leaves_a_fitted_lattice_free():
     returned for its systematic part to carry."""
     from orix.quaternion import Rotation
 
-    from kikuchipy_geomdic.calibration._full_field import _hold
-    from kikuchipy_geomdic.calibration._intensity import _System
+    from kikuchipy_geomdic.calibration._intensity import _hold, _System
     from kikuchipy_geomdic.calibration.solve import JointSystem, solve_joint
     from kikuchipy_geomdic.validation.synthetic import default_geometry
 
